@@ -66,7 +66,7 @@ def _fix16(x: float) -> int:
 
 def _rgb_to_ycc(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """jccolor.c ``rgb_ycc_convert``: 16-bit fixed point, Y rounded, Cb/Cr rounded with 0.5-ε."""
-    r, g, b = (rgb[..., i].astype(np.int64) for i in range(3))
+    r, g, b = (rgb[..., i].astype(np.int32) for i in range(3))  # sums stay below 2**25
     half = 1 << 15
     y = (_fix16(0.29900) * r + _fix16(0.58700) * g + _fix16(0.11400) * b + half) >> 16
     offset = (128 << 16) + half - 1
@@ -135,6 +135,7 @@ def _fdct_1d(d: list[np.ndarray], shift_even: int, shift_odd: int, scale_dc: boo
 
 def _fdct_islow(blocks: np.ndarray) -> np.ndarray:
     """Forward DCT of level-shifted samples (..., 8, 8); result scaled by 8 like libjpeg's."""
+    blocks = blocks.astype(np.int64)  # second-pass sums reach 2**30.5: too close to int32's limit
     rows = _fdct_1d([blocks[..., i] for i in range(8)], 13 - 2, 13 - 2, scale_dc=True)
     tmp = np.stack(rows, axis=-1)
     cols = _fdct_1d([tmp[..., i, :] for i in range(8)], 13 + 2, 13 + 2, scale_dc=False)
@@ -155,7 +156,7 @@ def _quantize(coefs: np.ndarray, qtable: np.ndarray) -> np.ndarray:
     c = np.where(~pow2 & (fr <= divisor // 2), c + 1, c)
     fq = np.where(~pow2 & (fr > divisor // 2), fq + 1, fq)
     mag = ((np.abs(coefs) + c) * fq) >> r
-    return np.where(coefs < 0, -mag, mag)
+    return np.where(coefs < 0, -mag, mag).astype(np.int32)  # the rest of the decoder runs in int32
 
 
 # --- decoder side -------------------------------------------------------------------------------------------
@@ -185,8 +186,8 @@ def _idct_ifast_1d(d: list[np.ndarray]) -> list[np.ndarray]:
 
 
 def _idct_ifast(coefs: np.ndarray, qtable: np.ndarray) -> np.ndarray:
-    """Dequantise and inverse-transform quantised blocks (..., 8, 8) → samples 0..255 (int64)."""
-    mult = ((qtable.reshape(-1) * _AAN_SCALES + (1 << 11)) >> 12).reshape(8, 8)
+    """Dequantise and inverse-transform quantised blocks (..., 8, 8) → samples 0..255 (int32)."""
+    mult = ((qtable.reshape(-1) * _AAN_SCALES + (1 << 11)) >> 12).reshape(8, 8).astype(np.int32)
     deq = coefs * mult
     cols = _idct_ifast_1d([deq[..., k, :] for k in range(8)])  # pass 1 runs down the columns
     ws = np.stack(cols, axis=-2)
@@ -201,7 +202,7 @@ def _upsample_h2v2_fancy(plane: np.ndarray, out_h: int, out_w: int) -> np.ndarra
     up = np.concatenate([plane[:1], plane[:-1]], axis=0)
     down = np.concatenate([plane[1:], plane[-1:]], axis=0)
     h, w = plane.shape
-    result = np.empty((2 * h, 2 * w), dtype=np.int64)
+    result = np.empty((2 * h, 2 * w), dtype=plane.dtype)
     for v, other in ((0, up), (1, down)):
         colsum = plane * 3 + other
         last = np.concatenate([colsum[:, :1], colsum[:, :-1]], axis=1)

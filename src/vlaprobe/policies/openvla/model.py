@@ -8,7 +8,8 @@ Sequence layout (as OpenVLA's ``PrismaticForConditionalGeneration.forward`` buil
 with P = 256 and T = L + P. Rotary positions run 0 … T−1 over the whole sequence, patches included. The
 state at position T−1 predicts action token 0; action token k, fed at position T+k, predicts token k+1.
 The prompt goes through the decoder once: that pass yields every layer's hidden states *and* the logits
-of the first action token; the other six tokens are decoded one position at a time with the KV cache.
+of the first action token; the other six tokens are decoded one position at a time with the KV cache
+(``decode.CachedDecoder``).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from transformers import LlamaConfig, LlamaForCausalLM
 
 from vlaprobe.policies.base import Pooling
 from vlaprobe.policies.openvla.config import OpenVLAConfig
+from vlaprobe.policies.openvla.decode import CachedDecoder
 from vlaprobe.policies.openvla.vision import FusedVisionBackbone, Projector
 
 ACTION_DIM = 7
@@ -108,19 +110,19 @@ class OpenVLA(nn.Module):
         per_step = [hidden] if pooling == "action_tokens" else None
         logits = [lm.lm_head(out.last_hidden_state[:, -1])]
         tokens = [logits[-1].argmax(-1)]
-        cache = out.past_key_values
+        decoder = CachedDecoder(
+            lm,
+            out.past_key_values,
+            out.last_hidden_state.shape[1],
+            ACTION_DIM - 1,
+            record=per_step is not None,
+        )
         for _ in range(ACTION_DIM - 1):
-            out = lm.model(
-                input_ids=tokens[-1][:, None],
-                past_key_values=cache,
-                use_cache=True,
-                output_hidden_states=per_step is not None,
-            )
-            cache = out.past_key_values
+            step_logits, states = decoder.step(tokens[-1])
             if per_step is not None:
-                per_step.append(torch.stack([h[0, -1] for h in out.hidden_states]))
-            logits.append(lm.lm_head(out.last_hidden_state[:, -1]))
-            tokens.append(logits[-1].argmax(-1))
+                per_step.append(states)
+            logits.append(step_logits)
+            tokens.append(step_logits.argmax(-1))
         generated = torch.cat(tokens)
         if per_step is not None:
             hidden = torch.stack(per_step, dim=1)

@@ -114,11 +114,14 @@ def _spans(out_size: int, in_size: int) -> tuple[np.ndarray, np.ndarray]:
 def _gather(image: np.ndarray, starts: np.ndarray, weights: np.ndarray, axis: int) -> np.ndarray:
     """Weighted sum over spans along ``axis`` (0 = rows, 1 = columns), accumulated in span order."""
     in_size = image.shape[axis]
-    out = np.zeros((len(starts), *np.delete(image.shape, axis)), dtype=np.float32)
-    src = np.moveaxis(image, axis, 0)
+    src = np.ascontiguousarray(np.moveaxis(image, axis, 0))
+    out = np.zeros((len(starts), *src.shape[1:]), dtype=np.float32)
+    term = np.empty_like(out)
+    shape = (-1, *([1] * (src.ndim - 1)))
     for j in range(weights.shape[1]):
         idx = np.minimum(starts + j, in_size - 1)  # past the span the weight is 0
-        out += weights[:, j].reshape(-1, *([1] * (src.ndim - 1))) * src[idx]
+        np.multiply(weights[:, j].reshape(shape), np.take(src, idx, axis=0), out=term)
+        out += term
     return np.moveaxis(out, 0, axis)
 
 
@@ -148,13 +151,12 @@ def center_crop_float(image: np.ndarray, crop_scale: float = CROP_SCALE) -> np.n
 
     top_i, bot_i, y_lerp = coords(h)
     left_i, right_i, x_lerp = coords(w)
-    xl = x_lerp[None, :, None]
-    rows_top, rows_bottom = img[top_i], img[bot_i]
-    tl, tr = rows_top[:, left_i], rows_top[:, right_i]
-    bl, br = rows_bottom[:, left_i], rows_bottom[:, right_i]
-    top = tl + (tr - tl) * xl
-    bottom = bl + (br - bl) * xl
-    return top + (bottom - top) * y_lerp[:, None, None]
+    # Lerp along x over whole rows first, then pick the two rows for each output row: the same float32
+    # operations on the same operands as interpolating each of the four corners per output pixel.
+    left = np.take(img, left_i, axis=1)
+    across = left + (np.take(img, right_i, axis=1) - left) * x_lerp[None, :, None]
+    top = across[top_i]
+    return top + (across[bot_i] - top) * y_lerp[:, None, None]
 
 
 def center_crop_resize(image: np.ndarray, crop_scale: float = CROP_SCALE) -> np.ndarray:
