@@ -12,16 +12,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from vlaprobe.collection import collect
+from vlaprobe.collection import store as store_module
+from vlaprobe.configs.collect import CollectConfig
+from vlaprobe.configs.env import EnvConfig
+from vlaprobe.configs.policy import PolicyConfig
 from vlaprobe.configs.report import ReportConfig
-from vlaprobe.configs.train import SplitConfig, TrainConfig
+from vlaprobe.configs.train import ProbeConfig, SplitConfig, TrainConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.probes import ProbeSet, load_store, synthetic_data
 from vlaprobe.probes import train as train_module
 from vlaprobe.reports import report as report_module
 
-store_module = pytest.importorskip(
-    "vlaprobe.collection.store", reason="the collection stage is not there yet"
-)
 FAST = dict(bootstrap=100, auprc_bootstrap=10)
 
 
@@ -132,14 +134,12 @@ def test_store_errors_are_one_line(tmp_path: Path) -> None:
         train_module.train_probes(TrainConfig(store=tmp_path / "s", layers=(9,)))
     with pytest.raises(VlaprobeError, match="no label head"):
         train_module.train_probes(TrainConfig(store=tmp_path / "s", heads=("colour",)))
+    with pytest.raises(VlaprobeError, match="unknown device 'gpu'"):
+        train_module.train_probes(TrainConfig(store=tmp_path / "s", probe=ProbeConfig(device="gpu")))
 
 
 @pytest.mark.libero
 def test_tiny_real_collection_through_train_and_report(tmp_path: Path) -> None:
-    collect = pytest.importorskip("vlaprobe.collection.collect")
-    from vlaprobe.configs.collect import CollectConfig
-    from vlaprobe.configs.env import EnvConfig
-    from vlaprobe.configs.policy import PolicyConfig
 
     # Two tasks x two short expert episodes (kept although they end before success): a few hundred steps.
     cfg = CollectConfig(

@@ -18,6 +18,7 @@ import os
 from pathlib import Path
 
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import write_atomic
 
 ASSETS_ENV = "VLAPROBE_LIBERO_ASSETS"
 
@@ -82,9 +83,7 @@ def _write_libero_config() -> None:
     )
     target = cfg_dir / "config.yaml"
     if not target.is_file() or target.read_text() != text:
-        tmp = target.with_suffix(f".tmp{os.getpid()}")
-        tmp.write_text(text)
-        os.replace(tmp, target)
+        write_atomic(target, text)
     os.environ["LIBERO_CONFIG_PATH"] = str(cfg_dir)
 
 

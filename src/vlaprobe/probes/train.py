@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from vlaprobe.configs.train import TrainConfig
+from vlaprobe.devices import resolve_device
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import versions, write_atomic
 from vlaprobe.probes.data import ACTION_PREDICATES, OBJECT_PREDICATES, ProbeData, load_store, predicate
@@ -38,6 +39,7 @@ CONFIG_FILE = "config.json"
 
 def train_probes(cfg: TrainConfig) -> Path:
     """Train and evaluate probes on ``cfg.store``; return the output folder."""
+    resolve_device(cfg.probe.device)  # a bad --probe.device fails before the store is read, not after
     data = load_store(cfg.store, heads=cfg.heads, layers=cfg.layers, success_only=cfg.split.success_only)
     observer = None
     if cfg.observer_store is not None:

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from vlaprobe.configs.train import ProbeConfig
+from vlaprobe.devices import resolve_device
 
 
 @dataclass
@@ -56,13 +57,6 @@ class LinearProbes:
                     x = (x - self.mean[:, None]) / self.std[:, None]
                 out[:, start : start + len(part)] = torch.baddbmm(self.bias[:, None], x, self.weight).cpu()
         return out
-
-
-def resolve_device(name: str) -> torch.device:
-    """``"auto"`` -> cuda when available, else cpu; anything else as given."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
 
 
 def _training_matrix(

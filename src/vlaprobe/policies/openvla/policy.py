@@ -13,6 +13,7 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
+from vlaprobe import devices
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.policies.base import POOLINGS, PolicyStep, Pooling
 from vlaprobe.policies.openvla import actions, checkpoint, preprocessing
@@ -21,18 +22,9 @@ from vlaprobe.policies.openvla.tiny import LIBERO_SPATIAL_LIKE_STATS, tiny_confi
 from vlaprobe.policies.openvla.tokenizer import HFTokenizer, Tokenizer, WordHashTokenizer, prompt_ids
 
 
-def resolve_device(device: str) -> tuple[torch.device, torch.dtype]:
-    """Device and dtype: auto = CUDA + bf16 when available, else CPU + fp32; cpu = fp32; cuda[:N] = bf16."""
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    try:
-        dev = torch.device(device)
-    except RuntimeError:
-        raise VlaprobeError(f"unknown device {device!r}; use 'auto', 'cpu', 'cuda' or 'cuda:N'") from None
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise VlaprobeError(f"device {device!r} requested but CUDA is not available; use 'cpu' or 'auto'")
-    if dev.type not in ("cpu", "cuda"):
-        raise VlaprobeError(f"unsupported device {device!r}; use 'auto', 'cpu', 'cuda' or 'cuda:N'")
+def device_and_dtype(device: str) -> tuple[torch.device, torch.dtype]:
+    """Device and dtype: CUDA runs bf16 (as OpenVLA's evaluation does), the CPU fp32."""
+    dev = devices.resolve_device(device)
     return dev, (torch.bfloat16 if dev.type == "cuda" else torch.float32)
 
 
@@ -78,7 +70,7 @@ class OpenVLAPolicy:
     @classmethod
     def tiny(cls, seed: int = 0, device: str = "auto", **kwargs: Any) -> OpenVLAPolicy:
         """The embedded tiny model, built from ``seed`` (no file, no download)."""
-        dev, dtype = resolve_device(device)
+        dev, dtype = device_and_dtype(device)
         cfg = tiny_config()
         model = checkpoint.build_model(cfg, tiny_state_dict(cfg, seed), dev, dtype)
         return cls(
@@ -103,7 +95,7 @@ class OpenVLAPolicy:
             tokenizer: Tokenizer = WordHashTokenizer()
         else:
             tokenizer = HFTokenizer(folder)
-        dev, dtype = resolve_device(device)
+        dev, dtype = device_and_dtype(device)
         model = checkpoint.build_model(cfg, checkpoint.read_state_dict(folder, dev, dtype), dev, dtype)
         return cls(
             model,
