@@ -8,17 +8,29 @@ VENV=${VLAPROBE_VENV:-.venv}
 PY=${PYTHON:-python3}
 STAMP="$VENV/.vlaprobe-setup"
 want=$(cat scripts/setup.sh pyproject.toml | sha256sum | cut -c1-16)
+# The web UI: installs web/node_modules (npm ci) and rebuilds src/vlaprobe/live/ui when web/ changed. Without
+# Node the committed build is served; the script checks its own stamp, so it runs on every setup.
+if command -v node >/dev/null && command -v npm >/dev/null; then
+    bash scripts/build_web.sh || echo "setup: building the web UI failed; the shipped build in src/vlaprobe/live/ui is served" >&2
+fi
 if [[ -f "$STAMP" && "$(cat "$STAMP")" == "$want" ]]; then
     exit 0
 fi
 
-# Offscreen rendering without a GPU: OSMesa (Debian/Ubuntu package libosmesa6). Mesa's EGL is the fallback.
-if ! ldconfig -p 2>/dev/null | grep -q libOSMesa; then
+# System packages (Debian/Ubuntu), installed with apt when run as root:
+# - libosmesa6: offscreen rendering without a GPU (OSMesa; Mesa's EGL is the fallback);
+# - swi-prolog-nox: runs the DIARC-syntax Prolog rules of the cognition in the tests (vlaprobe.cognition);
+# - chromium: the browser of the web UI's end-to-end test (Playwright drives /usr/bin/chromium).
+need=()
+ldconfig -p 2>/dev/null | grep -q libOSMesa || need+=(libosmesa6)
+command -v swipl >/dev/null || need+=(swi-prolog-nox)
+[[ -x /usr/bin/chromium ]] || need+=(chromium)
+if ((${#need[@]})); then
     if command -v apt-get >/dev/null && [[ $(id -u) == 0 ]]; then
-        echo "setup: installing libosmesa6 (offscreen rendering on CPU)"
-        (apt-get install -y -qq libosmesa6 >/dev/null 2>&1) || (apt-get update -qq && apt-get install -y -qq libosmesa6 >/dev/null)
+        echo "setup: installing ${need[*]} (apt)"
+        (apt-get install -y -qq "${need[@]}" >/dev/null 2>&1) || (apt-get update -qq && apt-get install -y -qq "${need[@]}" >/dev/null)
     else
-        echo "setup: libOSMesa not found; rendering falls back to EGL (install libosmesa6 for OSMesa)" >&2
+        echo "setup: missing system packages ${need[*]}; install them with apt (rendering falls back to EGL; the Prolog and browser tests are skipped)" >&2
     fi
 fi
 

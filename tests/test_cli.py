@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
 import pytest
 
 from vlaprobe.cli import main
-from vlaprobe.configs import COMMANDS, config_from_dict, config_to_dict
+from vlaprobe.commands import COMMANDS
+from vlaprobe.configs import config_from_dict, config_to_dict
 from vlaprobe.configs.run import RunConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.pipeline import stage_configs
@@ -20,6 +22,37 @@ def test_every_command_target_resolves() -> None:
     for name, command in COMMANDS.items():
         module, func = command.target.split(":")
         assert callable(getattr(importlib.import_module(module), func)), name
+        assert dataclasses.is_dataclass(command.config_class()), name
+
+
+@pytest.mark.parametrize("name", list(COMMANDS))
+def test_every_command_help_shows_config(name: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_:
+        main([name, "--help"])
+    assert exit_.value.code == 0
+    assert "--config FILE" in capsys.readouterr().out
+
+
+def test_config_equals_form_and_flags_override(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    seen = []
+    monkeypatch.setattr("vlaprobe.collection.info.info", lambda cfg: seen.append(cfg) or 0)
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps({"path": "from/file", "json": True}))
+    assert main(["info", f"--config={path}"]) == 0
+    assert main(["info", "--config", str(path), "--no-json"]) == 0
+    assert main(["info", "elsewhere", f"--config={path}"]) == 0
+    assert [(str(c.path), c.json) for c in seen] == [
+        ("from/file", True),
+        ("from/file", False),
+        ("elsewhere", True),
+    ]
+
+
+def test_unknown_command_is_named(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["monitr", "--help"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "unknown command 'monitr'" in err and "\n" not in err
+    assert main(["--help"]) == 0 and "model-info" in capsys.readouterr().out
 
 
 def test_run_config_round_trips_through_json() -> None:
@@ -33,6 +66,22 @@ def test_run_config_round_trips_through_json() -> None:
 def test_config_file_unknown_field_is_refused() -> None:
     with pytest.raises(VlaprobeError, match="unknown field"):
         config_from_dict(RunConfig, {"out": "x", "colect": {}})
+
+
+@pytest.mark.parametrize(
+    "data, where",
+    [
+        ({"train": {"store": 5}}, "train.store"),
+        ({"train": {"probe": "notadict"}}, "train.probe"),
+        ({"collect": {"driver": "bob"}}, "collect.driver"),
+        ({"train": {"layers": [1, "a"]}}, "train.layers"),
+        ({"train": {"layers": 5}}, "c.json"),
+    ],
+)
+def test_config_file_wrong_types_are_one_line(data: dict, where: str) -> None:
+    with pytest.raises(VlaprobeError, match=where) as err:
+        config_from_dict(RunConfig, data, source="c.json")
+    assert "\n" not in str(err.value)
 
 
 def test_stage_paths_follow_the_run_folder(tmp_path: Path) -> None:

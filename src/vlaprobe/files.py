@@ -53,3 +53,31 @@ def versions() -> dict[str, str | None]:
         except metadata.PackageNotFoundError:
             out[name] = None
     return out
+
+
+def check_output_folder(out: str | Path, flag: str = "--out") -> None:
+    """Refuse (one line, before any long work) an output folder that cannot be written.
+
+    ``out`` may not exist yet: then its nearest existing parent must be a folder in which a file can be
+    created (a file in the way, a read-only folder or ``/proc`` fail here, not after hours of work).
+    """
+    from vlaprobe.errors import VlaprobeError
+
+    out = Path(out)
+    if str(out) in ("", "."):
+        raise VlaprobeError(f"{flag} needs a folder path (got {str(out)!r}); name a new folder, e.g. {flag} runs/mine")
+    if out.exists() and not out.is_dir():
+        raise VlaprobeError(f"{flag} {out} is a file, not a folder; choose a folder path")
+    parent = out
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise VlaprobeError(f"{flag} {out}: {parent} is a file, not a folder; choose another path")
+    try:
+        fd, probe = tempfile.mkstemp(dir=parent, prefix=".vlaprobe-write-check.")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise VlaprobeError(
+            f"{flag} {out}: cannot write in {parent} ({exc.strerror}); choose a writable folder"
+        ) from None

@@ -1,4 +1,4 @@
-"""``vlaprobe run``: the experiment end to end, collect → train → report, into one run folder."""
+"""``vlaprobe run``: the experiment end to end, collect → train → monitor → report, into one run folder."""
 
 from __future__ import annotations
 
@@ -8,8 +8,10 @@ import time
 from pathlib import Path
 
 from vlaprobe.configs import config_to_dict
+from vlaprobe.configs.checks import check_run
 from vlaprobe.configs.run import RunConfig
-from vlaprobe.files import write_atomic
+from vlaprobe.files import check_output_folder, write_atomic
+from vlaprobe.probes.outfolder import check_probe_folder
 
 
 def stage_configs(cfg: RunConfig) -> RunConfig:
@@ -20,6 +22,7 @@ def stage_configs(cfg: RunConfig) -> RunConfig:
         cfg,
         collect=dataclasses.replace(cfg.collect, out=store),
         train=dataclasses.replace(cfg.train, store=store, out=probes),
+        monitor=dataclasses.replace(cfg.monitor, store=store, probes=probes, out=None, json=False),
         report=dataclasses.replace(cfg.report, probes=probes, out=report),
     )
 
@@ -32,32 +35,43 @@ def _save_config(cfg: RunConfig) -> Path:
 
 def run(cfg: RunConfig) -> Path:
     """Run all stages; return the report page. Re-running the same config resumes the collection."""
+    from vlaprobe.cognition.monitor import monitor
     from vlaprobe.collection.collect import collect
     from vlaprobe.probes.train import train_probes
     from vlaprobe.reports.report import write_report
 
+    check_run(cfg)
+    check_output_folder(cfg.out)
     cfg = stage_configs(cfg)
-    config_path = _save_config(cfg)
-    print(f"[1/3] collect → {cfg.collect.out}  (config saved to {config_path})", flush=True)
+    check_probe_folder(cfg.train.out, "--out")
+    print(f"[1/4] collect → {cfg.collect.out}", flush=True)
     t0 = time.perf_counter()
     collect(cfg.collect)
     t1 = time.perf_counter()
-    print(f"[2/3] train → {cfg.train.out}", flush=True)
+    print(f"[2/4] train → {cfg.train.out}", flush=True)
     train_probes(cfg.train)
+    print(f"[3/4] monitor → {cfg.train.out}/monitor.json", flush=True)
+    # The cognition over the held-out episodes, on the truth and on the probes; the report adds its section.
+    monitor(cfg.monitor)
     t2 = time.perf_counter()
-    print(f"[3/3] report → {cfg.report.out}", flush=True)
+    print(f"[4/4] report → {cfg.report.out}", flush=True)
     page = write_report(cfg.report)
     t3 = time.perf_counter()
-    print(f"times: collect {t1 - t0:.0f} s, train {t2 - t1:.0f} s, report {t3 - t2:.0f} s")
+    # Written once every stage has succeeded: a rejected or failed run leaves the last good config in place.
+    config_path = _save_config(cfg)
+    print(
+        f"times: collect {t1 - t0:.0f} s, train + monitor {t2 - t1:.0f} s, report {t3 - t2:.0f} s; config: {config_path}"
+    )
     return page
 
 
 def main(cfg: RunConfig) -> int:
     """CLI entry: run everything and print where the report is."""
+    from vlaprobe.probes.results import read_evaluation
+
     page = run(cfg)
-    summary = json.loads((Path(cfg.out) / "probes" / "evaluation.json").read_text())
-    for head, h in summary["heads"].items():
-        best = h["best"]
-        print(f"{head} atoms: best layer {best['layer']} ({best['metric']} {best['value']:.3f})")
+    for head, h in read_evaluation(Path(cfg.out) / "probes").heads.items():
+        value = "undefined" if h.best.value is None else f"{h.best.value:.3f}"
+        print(f"{head} atoms: best layer {h.best.layer} ({h.best.metric} {value})")
     print(f"report: {page}")
     return 0

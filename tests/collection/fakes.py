@@ -18,6 +18,7 @@ import numpy as np
 
 from vlaprobe.collection.worker import Worker
 from vlaprobe.envs.libero import Observation
+from vlaprobe.rollout import PolicyDriver
 from vlaprobe.symbols import Articulation, Goal, Labeler, Scene, WorldState
 
 NUM_TASKS, NUM_INITS, LAYERS, HIDDEN, IMAGE = 3, 12, 4, 8, 16
@@ -51,6 +52,7 @@ class FakeEnv:
 
     def reset(self, init: int) -> Observation:
         self.init, self.t = init, 0
+        self.labeler.reset()
         return self._observe()
 
     def _observe(self) -> Observation:
@@ -88,6 +90,11 @@ class FakeEnv:
             gripper_qpos=rng.uniform(0.0, 0.04, 2),
             gripper_command=float(rng.choice([-1.0, 1.0])),
             table_height=0.9,
+            # Drawn after the fields above, so that their values do not depend on these.
+            gripper_qvel=np.zeros(2),
+            lin_vel=np.zeros((3, 3)),
+            ang_vel=np.zeros((3, 3)),
+            finger_gap=np.where((contact | contact.T)[:2, 4:6], 0.0, 0.01),  # the fingers' contacts
         )
 
     def close(self) -> None:
@@ -103,8 +110,8 @@ class FakeStep:
 
 
 class FakePolicy:
-    def __init__(self, cfg: Any) -> None:
-        self.model_id, self.pooling, self.seed = "fake", cfg.policy.pooling, cfg.policy.seed
+    def __init__(self, cfg: Any) -> None:  # a PolicyConfig
+        self.model_id, self.pooling, self.seed = "fake", cfg.pooling, cfg.seed
         self.num_hidden_states, self.hidden_size = LAYERS, HIDDEN
 
     def step(self, image: np.ndarray, instruction: str) -> FakeStep:
@@ -122,11 +129,20 @@ class FakePolicy:
 
 
 class FakeExpert:
+    """The "expert" driver; the "policy" driver executes the fake model's own action."""
+
     def __init__(self, env: FakeEnv, seed: int) -> None:
         self.env = env
 
-    def act(self) -> np.ndarray:
+    def reset(self) -> None:
+        pass
+
+    def act(self, obs: Observation, prediction: Any) -> np.ndarray:
         return np.array([0.1, 0.0, -0.1, 0.0, 0.0, 0.0, 1.0 if self.env.t > 1 else -1.0])
+
+
+def fake_driver(name: str, env: Any, policy: Any, seed: int) -> Any:
+    return FakeExpert(env, seed) if name == "expert" else PolicyDriver()
 
 
 def fake_tasks(cfg: Any) -> dict[int, str]:
@@ -134,7 +150,7 @@ def fake_tasks(cfg: Any) -> dict[int, str]:
 
 
 make_fake_worker = partial(
-    Worker, make_env=FakeEnv, make_policy=FakePolicy, make_expert=FakeExpert, list_tasks=fake_tasks
+    Worker, make_env=FakeEnv, make_policy=FakePolicy, make_driver=fake_driver, list_tasks=fake_tasks
 )
 """A picklable worker factory (spawned processes and Ray actors import this module to rebuild it)."""
 

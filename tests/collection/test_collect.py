@@ -13,7 +13,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tests.collection.fakes import GOAL, HIDDEN, LAYERS, SCENE, make_fake_worker, serial_keys, succeeds
+from tests.collection.fakes import (
+    GOAL,
+    HIDDEN,
+    LAYERS,
+    SCENE,
+    make_fake_worker,
+    serial_keys,
+    succeeds,
+    success_step,
+)
 
 from vlaprobe.collection.collect import collect
 from vlaprobe.collection.info import info
@@ -199,3 +208,21 @@ def test_info_json_and_table(tmp_path: Path, capsys: pytest.CaptureFixture[str])
     assert "2 (2 successful)" in table and "put the bowl on the plate (2)" in table
     with pytest.raises(VlaprobeError, match="not an activation store"):
         info(InfoConfig(path=tmp_path))
+
+
+def test_post_success_steps_record_rows_after_success_and_the_success_step(tmp_path: Path) -> None:
+    cfg = config(
+        tmp_path / "store", tasks=(0,), post_success_steps=2, env=EnvConfig(max_steps=10, image_size=16)
+    )
+    collect(cfg, make_fake_worker)
+    store = ActivationStore.open(cfg.out)
+    for info_, ep in store.iter_episodes():
+        s = success_step(info_.task, info_.init)
+        assert info_.success_step == s and info_.length == s + 3
+        assert np.isnan(ep["action"][-1]).all() and not np.isnan(ep["action"][:-1]).any()
+    assert {"success_step"} <= set(store.summary()["episodes"][0])
+    # Another post-success budget is another dataset: refused before any work.
+    with pytest.raises(VlaprobeError, match="post_success_steps"):
+        collect(dataclasses.replace(cfg, post_success_steps=0), make_fake_worker)
+    with pytest.raises(VlaprobeError, match="post-success-steps"):
+        collect(dataclasses.replace(cfg, out=tmp_path / "other", post_success_steps=-1), make_fake_worker)

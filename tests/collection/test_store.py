@@ -10,13 +10,8 @@ import numpy as np
 import pytest
 import zarr
 
-from vlaprobe.collection.store import (
-    FORMAT_VERSION,
-    ActivationStore,
-    EpisodeInfo,
-    StoreWriter,
-    episode_key,
-)
+from vlaprobe.collection.store import FORMAT_VERSION, ActivationStore, EpisodeInfo, episode_key
+from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.errors import VlaprobeError
 
 LAYERS, HIDDEN = 5, 16
@@ -243,3 +238,14 @@ def test_update_meta_keeps_the_rest(tmp_path: Path) -> None:
         w.update_meta(runs=[{"command": "a"}])
     meta = ActivationStore.open(path).meta
     assert meta["runs"] == [{"command": "a"}] and meta["extra"] == "kept" and meta["pooling"] == "last_prompt"
+
+
+def test_success_step_round_trips_and_older_episodes_read_it_as_their_last_row() -> None:
+    info = EpisodeInfo(
+        key="t00_i00_a00", task=0, init=0, attempt=0, success=True, length=9, seed=1, driver="expert",
+        success_step=5,
+    )  # fmt: skip
+    assert EpisodeInfo.from_attrs(json.loads(json.dumps(info.attrs()))) == info
+    legacy = {k: v for k, v in info.attrs().items() if k != "success_step"}
+    assert EpisodeInfo.from_attrs(legacy).success_step == 8
+    assert EpisodeInfo.from_attrs({**legacy, "success": False}).success_step is None

@@ -114,3 +114,37 @@ def test_summarize_averages_predicates_over_their_atoms() -> None:
     assert s["predicate"]["value"][0].tolist() == pytest.approx([0.75, 0.2])
     assert s["predicate"]["count"][0].tolist() == [2, 1]
     assert s["layer"]["value"][0] == pytest.approx((0.5 + 1.0 + 0.2) / 3)
+
+
+def test_f1_is_undefined_without_a_positive_step_even_with_false_positives() -> None:
+    m = metrics_from_counts(np.array([[0, 3, 0, 97]], float))  # tp fp fn tn
+    assert np.isnan(m["f1"][0]) and m["accuracy"][0] == pytest.approx(0.97)
+
+
+def test_balanced_accuracy_is_undefined_in_resamples_without_a_positive_episode() -> None:
+    # Episode 0 holds the only positives, predicted badly; episodes 1-3 are negatives, predicted right.
+    groups = np.repeat(np.arange(4), 10)
+    truth = np.zeros((40, 1), bool)
+    truth[:10] = True
+    pred = np.zeros((40, 1), bool)
+    pred[:3] = True  # recall 0.3 on the positives
+    logits = torch.tensor(np.where(pred, 1.0, -1.0), dtype=torch.float32)[None]
+    w = bootstrap_weights(4, 400, seed=0)
+    point, res = atom_metrics(logits, truth, groups, 4, 0.0, w, auprc_resamples=0)
+    assert point["balanced_accuracy"][0, 0] == pytest.approx((0.3 + 1.0) / 2)
+    without = (w[:, 0] == 0) | (w[:, 0] == 4)  # no positive episode drawn, or only it
+    assert (w[:, 0] == 0).any() and np.isnan(res["balanced_accuracy"][without]).all()
+    assert not np.isnan(res["balanced_accuracy"][~without]).any()
+    assert np.nanmax(res["balanced_accuracy"]) == pytest.approx(0.65)  # never the negatives' recall alone
+    s = summarize(point["balanced_accuracy"], res["balanced_accuracy"], [np.array([0])])
+    assert s["atom"]["defined"][0, 0] == (~without).sum()
+    assert s["layer"]["defined"][0] == (~without).sum() and s["atom"]["high"][0, 0] <= 0.65 + 1e-9
+
+
+def test_summarize_counts_the_resamples_that_define_each_average() -> None:
+    point = np.array([[0.5, 0.7, np.nan]])  # the third atom is undefined at the point: it does not count
+    res = np.array([[[0.5, 0.7, np.nan]], [[np.nan, 0.6, np.nan]], [[0.4, 0.6, np.nan]]])
+    s = summarize(point, res, [np.array([0, 1]), np.array([2])])
+    assert s["atom"]["defined"][0].tolist() == [2, 3, 0]
+    assert s["predicate"]["defined"][0].tolist() == [2, 3]
+    assert s["layer"]["defined"].tolist() == [2]

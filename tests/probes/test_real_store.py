@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from vlaprobe.collection import collect
-from vlaprobe.collection import store as store_module
+from vlaprobe.collection import writer as store_module
 from vlaprobe.configs.collect import CollectConfig
 from vlaprobe.configs.env import EnvConfig
 from vlaprobe.configs.policy import PolicyConfig

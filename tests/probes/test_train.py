@@ -150,7 +150,7 @@ def test_kfold_tests_every_episode_once_and_refits_on_all(tmp_path: Path) -> Non
     out = train_on_data(data, cfg, tmp_path)
     ev = json.loads((out / "evaluation.json").read_text())
     assert sorted(ev["split"]["test_episodes"]) == sorted(data.episode_keys)
-    assert "control" not in ev["heads"]["object"]
+    assert ev["heads"]["object"]["control"] is None
     assert json.loads((out / "probes.json").read_text())["trained_on"]["split"].startswith("all episodes")
 
 
@@ -173,3 +173,31 @@ def test_a_head_without_varying_atoms_is_skipped_and_recorded(tmp_path: Path) ->
     assert list(ev["heads"]) == ["object"]
     assert len(ev["skipped_heads"]["action"]["dropped"]) == 4
     assert ProbeSet.load(out).heads == ["object"]
+
+
+def test_shuffled_control_is_the_mean_of_several_permutations(run: dict, tmp_path: Path) -> None:
+    ev = run["ev"]
+    obj = ev["heads"]["object"]
+    assert ev["controls"]["shuffled_permutations"] == 5
+    spread = np.array(obj["control_spread"]["accuracy"]["layer"], float)
+    assert spread.shape == (len(ev["layers"]),) and np.all(spread > 0)  # the permutations differ
+    # One permutation is a different (noisier) control than the mean of five.
+    one = train_on_data(run["data"], TrainConfig(shuffled_permutations=1, **FAST), tmp_path)
+    single = json.loads((one / "evaluation.json").read_text())["heads"]["object"]
+    assert not np.allclose(
+        np.array(single["control"]["accuracy"]["layer"]["value"], float),
+        np.array(obj["control"]["accuracy"]["layer"]["value"], float),
+    )
+    assert np.all(np.array(single["control_spread"]["accuracy"]["layer"], float) == 0)
+
+
+def test_realized_test_fraction_is_recorded_next_to_the_requested_one(run: dict) -> None:
+    split = run["ev"]["split"]
+    assert split["test_fraction"] == 0.2 and split["realized_test_fraction"] == pytest.approx(3 / 15)
+    data = small_data()
+    three = dataclasses.replace(data)  # 5 episodes per task: round(0.33 * 5) = 2 held out per task
+    ev = train_on_data(
+        three, TrainConfig(split=SplitConfig(test_fraction=0.33), **FAST), Path(run["out"]).parent / "f"
+    )
+    split = json.loads((ev / "evaluation.json").read_text())["split"]
+    assert split["test_fraction"] == 0.33 and split["realized_test_fraction"] == pytest.approx(6 / 15)

@@ -154,3 +154,43 @@ def test_missing_or_foreign_folder_is_a_one_line_error(tmp_path: Path) -> None:
     (tmp_path / "evaluation.json").write_text(json.dumps({"format": "something-else"}))
     with pytest.raises(VlaprobeError, match="not a vlaprobe evaluation"):
         write_report(ReportConfig(probes=tmp_path))
+
+
+def test_extra_sections_render_from_their_template(report: dict, monkeypatch: pytest.MonkeyPatch) -> None:
+    from vlaprobe.reports import sections
+    from vlaprobe.reports.sections import Section
+
+    template = Path(sections.__file__).parent / "templates" / "test_extra_section.html"
+    template.write_text("<p class='extra'>{{ data.answer }} {{ section.title }}</p>\n")
+    try:
+        monkeypatch.setattr(
+            sections,
+            "SECTION_PROVIDERS",
+            ["tests.reports.test_report:_provider"],
+        )
+        extra = Section("mine", "My section", "test_extra_section.html", {"answer": "<42>"})
+        page = write_report(ReportConfig(probes=report["probes"], out=report["dir"] / "x", dpi=40), [extra])
+        text = page.read_text()
+    finally:
+        template.unlink()
+    assert "<h2 id='mine'>My section</h2>" in text and "<p class='extra'>&lt;42&gt; My section</p>" in text
+    assert "<h2 id='found'>Found</h2>" in text and text.index("id='mine'") < text.index("id='config'")
+
+
+def _provider(probes: Path) -> object:
+    from vlaprobe.reports.sections import Section
+
+    return Section("found", "Found", "test_extra_section.html", {"answer": probes.name})
+
+
+def test_page_shows_resamples_realized_split_and_control_spread(report: dict) -> None:
+    text = report["page"].read_text()
+    ev = report["ev"]
+    assert ev["format_version"] == 2 and ev["controls"]["shuffled_permutations"] == 5
+    assert "resamples defining balanced accuracy" in text and "5 permutations" in text
+    split = ev["split"]
+    assert split["realized_test_fraction"] == pytest.approx(3 / 12) and split["test_fraction"] == 0.2
+    assert "held out: 25.0% of the episodes; requested 20.0%" in text
+    tables = json.loads((report["dir"] / "tables.json").read_text())
+    row = tables["object"]["best_layer"]["rows"][-1]
+    assert 0 < row["probe.balanced_accuracy.defined"] <= 100 and row["control.accuracy.sd"] >= 0

@@ -12,7 +12,6 @@ from __future__ import annotations
 import shlex
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -20,14 +19,18 @@ from typing import Any
 
 from tqdm import tqdm
 
-from vlaprobe.collection.executors import make_executor
+from vlaprobe.collection.executors import Executor, MakeWorker, make_executor
 from vlaprobe.collection.plan import Plan, Unit
-from vlaprobe.collection.store import StagedEpisode, StoreWriter, check_compatible, read_meta
-from vlaprobe.collection.worker import EpisodeResult, Worker, unit_seed
+from vlaprobe.collection.store import read_meta
+from vlaprobe.collection.verify import require_intact
+from vlaprobe.collection.worker import EpisodeResult, RunDescription, Worker, unit_seed
+from vlaprobe.collection.writer import StagedEpisode, StoreWriter, check_compatible
 from vlaprobe.configs import config_to_dict
+from vlaprobe.configs.checks import check_collect
 from vlaprobe.configs.collect import CollectConfig
+from vlaprobe.envs.setup import resolve_assets
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import versions
+from vlaprobe.files import check_output_folder, versions
 
 VOLATILE_MODEL_KEYS = ("device", "source")
 """Model description entries that may change between runs of one store (recorded per run, not compared)."""
@@ -64,6 +67,10 @@ def _validate(cfg: CollectConfig) -> None:
         raise VlaprobeError(f"--workers must be at least 1, got {cfg.workers}")
     if cfg.max_tries_per_task is not None and cfg.max_tries_per_task < 1:
         raise VlaprobeError(f"--max-tries-per-task must be at least 1, got {cfg.max_tries_per_task}")
+    if cfg.env.max_steps < 1:
+        raise VlaprobeError(f"--env.max-steps must be at least 1, got {cfg.env.max_steps}")
+    if cfg.post_success_steps < 0:
+        raise VlaprobeError(f"--post-success-steps must be 0 or more, got {cfg.post_success_steps}")
     if not cfg.env.render:
         raise VlaprobeError("collect needs the camera image for the model; drop --env.no-render")
     if len(set(cfg.tasks)) != len(cfg.tasks):
@@ -87,21 +94,22 @@ def _run_meta(cfg: CollectConfig) -> dict[str, Any]:
         "suite": cfg.env.suite,
         "env": _env_meta(cfg),
         "seed": cfg.policy.seed,
+        "post_success_steps": cfg.post_success_steps,
     }
 
 
-def _store_meta(cfg: CollectConfig, desc: dict[str, Any]) -> dict[str, Any]:
-    model = {k: v for k, v in desc["model"].items() if k not in VOLATILE_MODEL_KEYS}
+def _store_meta(cfg: CollectConfig, desc: RunDescription) -> dict[str, Any]:
+    model = {k: v for k, v in desc.model.items() if k not in VOLATILE_MODEL_KEYS}
     return {
         **_run_meta(cfg),
-        "atom_names": desc["atom_names"],
-        "model_id": desc["model_id"],
+        "atom_names": desc.atom_names,
+        "model_id": desc.model_id,
         "model": model,
-        "num_hidden_states": desc["num_hidden_states"],
-        "hidden_size": desc["hidden_size"],
-        "pooling": desc["pooling"],
-        "instructions": {str(k): v for k, v in sorted(desc["tasks"].items())},
-        "num_init_states": desc["num_init_states"],
+        "num_hidden_states": desc.num_hidden_states,
+        "hidden_size": desc.hidden_size,
+        "pooling": desc.pooling,
+        "instructions": {str(k): v for k, v in sorted(desc.tasks.items())},
+        "num_init_states": desc.num_init_states,
         "versions": versions(),
         "command": shlex.join(sys.argv),
         "config": config_to_dict(cfg),
@@ -146,35 +154,39 @@ class _Progress:
         self.bar.close()
 
 
-def collect(cfg: CollectConfig, make_worker: Callable[[CollectConfig], Any] = Worker) -> CollectResult:
+def collect(cfg: CollectConfig, make_worker: MakeWorker = Worker) -> CollectResult:
     """Collect episodes into ``cfg.out`` (see the module docstring). ``make_worker`` builds each worker."""
     _validate(cfg)
+    check_collect(cfg)
     start = time.perf_counter()
     out = Path(cfg.out)
+    check_output_folder(out)  # a file or an unwritable path fails here, not after the model has loaded
+    resolve_assets(cfg.env.assets)  # bad LIBERO assets fail before the model loads
     if out.is_dir() and any(out.iterdir()):  # fail fast, before any model is loaded
         check_compatible(out, read_meta(out, "choose a new or empty folder for --out"), _run_meta(cfg))
+        require_intact(out)  # a damaged episode would otherwise block or poison the resume
     executor = make_executor(cfg, make_worker)
     writer: StoreWriter | None = None
     progress: _Progress | None = None
     try:
         desc = executor.describe()
-        tasks = list(cfg.tasks) or sorted(desc["tasks"])
-        unknown = [t for t in tasks if t not in desc["tasks"]]
+        tasks = list(cfg.tasks) or sorted(desc.tasks)
+        unknown = [t for t in tasks if t not in desc.tasks]
         if unknown:
             raise VlaprobeError(
-                f"--tasks {unknown} do not exist; {cfg.env.suite} has tasks 0-{max(desc['tasks'])} (see `vlaprobe tasks`)"
+                f"--tasks {unknown} do not exist; {cfg.env.suite} has tasks 0-{max(desc.tasks)} (see `vlaprobe tasks`)"
             )
         writer = StoreWriter.open(out, _store_meta(cfg, desc))
         run = {
             "command": shlex.join(sys.argv),
             "config": config_to_dict(cfg),
             "versions": versions(),
-            "device": desc["model"].get("device"),
+            "device": desc.model.get("device"),
             "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         }
         writer.update_meta(runs=[*writer.meta.get("runs", []), run])
         known = {(e.task, e.init): e.success for e in writer.outcomes().values() if e.attempt == 0}
-        budget = min(cfg.max_tries_per_task or desc["num_init_states"], desc["num_init_states"])
+        budget = min(cfg.max_tries_per_task or desc.num_init_states, desc.num_init_states)
         plan = Plan(tasks, cfg.episodes_per_task, budget, known)
         progress = _Progress(cfg, plan)
         result = CollectResult(out, {}, [])
@@ -197,7 +209,7 @@ def collect(cfg: CollectConfig, make_worker: Callable[[CollectConfig], Any] = Wo
 
 def _loop(
     cfg: CollectConfig,
-    executor: Any,
+    executor: Executor,
     writer: StoreWriter,
     plan: Plan,
     progress: _Progress,

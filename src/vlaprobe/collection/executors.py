@@ -14,14 +14,48 @@ import time
 import traceback
 from collections import deque
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Protocol
 
 from vlaprobe.collection.plan import Unit
-from vlaprobe.collection.worker import EpisodeResult
+from vlaprobe.collection.worker import EpisodeResult, RunDescription
 from vlaprobe.configs.collect import CollectConfig
 from vlaprobe.errors import VlaprobeError
 
-MakeWorker = Callable[[CollectConfig], Any]
+
+class EpisodeRunner(Protocol):
+    """What an executor runs: a :class:`~vlaprobe.collection.worker.Worker` or a test's stand-in."""
+
+    def describe(self) -> RunDescription: ...
+
+    def run(self, unit: Unit, seed: int) -> EpisodeResult: ...
+
+    def close(self) -> None: ...
+
+
+MakeWorker = Callable[[CollectConfig], EpisodeRunner]
+
+
+class Executor(Protocol):
+    """Runs episodes somewhere (this process, worker processes, Ray actors); only the parent writes."""
+
+    capacity: int
+    """How many units may be submitted and not yet returned by :meth:`wait`."""
+
+    def describe(self) -> RunDescription:
+        """The first worker's description of the model and the suite."""
+        ...
+
+    def submit(self, unit: Unit, seed: int) -> None:
+        """Start one episode (at most ``capacity`` outstanding)."""
+        ...
+
+    def wait(self) -> list[tuple[Unit, EpisodeResult]]:
+        """Block until at least one submitted episode finished; return the finished ones."""
+        ...
+
+    def close(self) -> None:
+        """Stop every worker (also those still running speculative episodes)."""
+        ...
 
 
 class InlineExecutor:
@@ -32,7 +66,7 @@ class InlineExecutor:
         self._worker = make_worker(cfg)
         self._queue: deque[tuple[Unit, int]] = deque()
 
-    def describe(self) -> dict[str, Any]:
+    def describe(self) -> RunDescription:
         return self._worker.describe()
 
     def submit(self, unit: Unit, seed: int) -> None:
@@ -118,7 +152,7 @@ class ProcessExecutor:
                 raise payload
             return index, payload
 
-    def describe(self) -> dict[str, Any]:
+    def describe(self) -> RunDescription:
         i = self._idle.pop()
         self._busy[i] = None
         self._inboxes[i].put(("describe", ()))
@@ -190,7 +224,7 @@ class RayExecutor:
         except Exception as exc:
             raise _unwrap_ray_error(exc) from None
 
-    def describe(self) -> dict[str, Any]:
+    def describe(self) -> RunDescription:
         return self._get(self._actors[0].call.remote("describe"))
 
     def submit(self, unit: Unit, seed: int) -> None:
@@ -213,9 +247,7 @@ class RayExecutor:
             self._ray.shutdown()
 
 
-def make_executor(
-    cfg: CollectConfig, make_worker: MakeWorker
-) -> InlineExecutor | ProcessExecutor | RayExecutor:
+def make_executor(cfg: CollectConfig, make_worker: MakeWorker) -> Executor:
     if cfg.ray is not None:
         return RayExecutor(cfg, make_worker)
     if cfg.workers > 1:

@@ -9,7 +9,9 @@ from pathlib import Path
 from typing import Any
 
 from vlaprobe.collection.store import ActivationStore
+from vlaprobe.collection.verify import Damage, check_store, describe, repair_hint
 from vlaprobe.configs.collect import InfoConfig
+from vlaprobe.errors import VlaprobeError
 
 
 def _bytes(path: Path) -> int:
@@ -28,9 +30,11 @@ def summarize(path: str | Path) -> dict[str, Any]:
 
 def info(cfg: InfoConfig) -> int:
     s = summarize(cfg.path)
+    damage = check_store(cfg.path, read=cfg.verify)
+    s["damaged"] = [{"key": d.key, "problem": d.problem} for d in damage]
     if cfg.json:
         print(json.dumps(s))
-        return 0
+        return _fail(cfg.path, damage)
     per_task: dict[int, list[dict[str, Any]]] = defaultdict(list)
     for e in s["episodes"]:
         per_task[e["task"]].append(e)
@@ -52,4 +56,11 @@ def info(cfg: InfoConfig) -> int:
                 f"{task:>4}  {len(eps):>8}  {sum(e['success'] for e in eps):>10}  "
                 f"{sum(e['length'] for e in eps):>6}  {text}"
             )
+    return _fail(cfg.path, damage)
+
+
+def _fail(path: Path, damage: list[Damage]) -> int:
+    """After the summary: a damaged store is an error naming the episodes and the repair."""
+    if damage:
+        raise VlaprobeError(f"{describe(path, damage)}; {repair_hint(path, damage)}")
     return 0

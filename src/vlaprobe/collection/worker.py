@@ -1,9 +1,8 @@
 """One collection worker: a model and a simulator in one process, running one episode at a time.
 
-Per step ``t`` the worker snapshots the world, labels it, shows the observation to the model, picks the
-action (the expert's or the model's own) and steps the simulator, so that the image, hidden states, labels,
-proprioception and both actions of a row all belong to the same timestep. The episode is buffered in memory
-and handed back whole; the parent process writes it.
+The worker runs the one step loop (:func:`vlaprobe.rollout.run_episode`) and buffers its records into the
+per-step arrays of the store, so that the image, hidden states, labels, proprioception and both actions of a
+row all belong to the same timestep. The episode is handed back whole; the parent process writes it.
 """
 
 from __future__ import annotations
@@ -23,7 +22,13 @@ import numpy as np
 from vlaprobe.collection.plan import Unit
 from vlaprobe.collection.store import EpisodeInfo
 from vlaprobe.configs.collect import CollectConfig
+from vlaprobe.configs.env import EnvConfig
+from vlaprobe.configs.policy import PolicyConfig
+from vlaprobe.envs import make_env
+from vlaprobe.envs.base import TaskEnv
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.policies.base import VLAPolicy
+from vlaprobe.rollout import Driver, DriverName, make_driver, run_episode
 
 
 @dataclass
@@ -41,34 +46,40 @@ class EpisodeResult:
     """Of which: world-state snapshots and detectors."""
 
 
+@dataclass
+class RunDescription:
+    """What a worker knows before any episode: the observer model and the suite (the store's metadata)."""
+
+    model: dict[str, Any]
+    """The policy's JSON description (``VLAPolicy.describe()``)."""
+    model_id: str
+    num_hidden_states: int
+    hidden_size: int
+    pooling: str
+    atom_names: dict[str, list[str]]
+    """Atom names per label head ("object", "action"), in column order."""
+    tasks: dict[int, str]
+    """Every task of the suite: index -> instruction."""
+    num_init_states: int
+    """Init states per task (of the first selected task)."""
+
+
 def unit_seed(seed: int, unit: Unit) -> int:
     """The seed of one episode, derived from the run's seed and the unit alone (same on any worker)."""
     text = f"{seed}:{unit.task}:{unit.init}:{unit.attempt}".encode()
     return int.from_bytes(hashlib.sha256(text).digest()[:4], "little") & 0x7FFFFFFF
 
 
-def _libero_env(task: int, cfg: CollectConfig) -> Any:
-    from vlaprobe.envs.libero import LiberoTaskEnv
+def _make_policy(cfg: PolicyConfig) -> VLAPolicy:
+    from vlaprobe.policies.factory import make_policy
 
-    return LiberoTaskEnv(task, cfg.env)
-
-
-def _load_policy(cfg: CollectConfig) -> Any:
-    from vlaprobe.policies.openvla.commands import policy_from_config
-
-    return policy_from_config(cfg.policy)
+    return make_policy(cfg)
 
 
-def _scripted_expert(env: Any, seed: int) -> Any:
-    from vlaprobe.policies.expert import ScriptedExpert
-
-    return ScriptedExpert(env, seed=seed)
-
-
-def _suite_tasks(cfg: CollectConfig) -> dict[int, str]:
+def _suite_tasks(cfg: EnvConfig) -> dict[int, str]:
     from vlaprobe.envs.libero import suite_tasks
 
-    return dict(suite_tasks(cfg.env.suite))
+    return dict(suite_tasks(cfg.suite))
 
 
 def default_threads(workers: int) -> int:
@@ -85,112 +96,107 @@ def _seed_everything(seed: int) -> None:
         sys.modules["torch"].manual_seed(seed)
 
 
+MakeEnv = Callable[[int, EnvConfig], TaskEnv]
+MakePolicy = Callable[[PolicyConfig], VLAPolicy]
+MakeDriver = Callable[[DriverName, TaskEnv, VLAPolicy, int], Driver]
+ListTasks = Callable[[EnvConfig], dict[int, str]]
+
+
 class Worker:
     """Runs episodes: one model for the worker's life, one simulator at a time (rebuilt when the task changes).
 
-    The factories default to the real pieces (LIBERO, OpenVLA or the tiny model, the scripted expert); tests
-    pass small fakes with the same interfaces.
+    The factories default to the real pieces (:func:`vlaprobe.envs.make_env`,
+    :func:`vlaprobe.policies.make_policy`, :func:`vlaprobe.rollout.make_driver`); tests pass small fakes with
+    the same interfaces.
     """
 
     def __init__(
         self,
         cfg: CollectConfig,
-        make_env: Callable[[int, CollectConfig], Any] = _libero_env,
-        make_policy: Callable[[CollectConfig], Any] = _load_policy,
-        make_expert: Callable[[Any, int], Any] = _scripted_expert,
-        list_tasks: Callable[[CollectConfig], dict[int, str]] = _suite_tasks,
+        make_env: MakeEnv = make_env,
+        make_policy: MakePolicy = _make_policy,
+        make_driver: MakeDriver = make_driver,
+        list_tasks: ListTasks = _suite_tasks,
     ) -> None:
         self.cfg = cfg
-        self._make_env, self._make_expert, self._list_tasks = make_env, make_expert, list_tasks
+        self._make_env, self._make_driver, self._list_tasks = make_env, make_driver, list_tasks
         import torch
 
         torch.set_num_threads(cfg.threads or default_threads(cfg.workers))
-        self.policy = make_policy(cfg)
-        self.env: Any = None
-        self._atoms: tuple[tuple[str, ...], tuple[str, ...]] | None = None
+        self.policy = make_policy(cfg.policy)
+        self.env: TaskEnv | None = None
+        self._atoms: tuple[tuple[str, ...], tuple[str, ...]] = ((), ())
         self._first_task = -1
 
-    def _env_for(self, task: int) -> Any:
+    def _env_for(self, task: int) -> TaskEnv:
         if self.env is None or self.env.task_index != task:
             if self.env is not None:
                 self.env.close()
                 self.env = None
-            self.env = self._make_env(task, self.cfg)
+            self.env = self._make_env(task, self.cfg.env)
             vocab = self.env.labeler.vocabulary
             atoms = (tuple(vocab.object_atoms), tuple(vocab.action_atoms))
-            if self._atoms is not None and atoms != self._atoms:
+            if self._first_task >= 0 and atoms != self._atoms:
                 raise VlaprobeError(
                     f"task {task} has another atom vocabulary than task {self._first_task}; "
                     "collect tasks with different scenes into separate stores (--tasks, --out)"
                 )
-            if self._atoms is None:
+            if self._first_task < 0:
                 self._atoms, self._first_task = atoms, task
         return self.env
 
-    def describe(self) -> dict[str, Any]:
+    def describe(self) -> RunDescription:
         """The model's and the suite's description, from the first selected task's simulator."""
-        tasks = self._list_tasks(self.cfg)
+        tasks = self._list_tasks(self.cfg.env)
         first = self.cfg.tasks[0] if self.cfg.tasks else min(tasks)
         env = self._env_for(first)
         p = self.policy
-        return {
-            "model": p.describe(),
-            "model_id": p.model_id,
-            "num_hidden_states": int(p.num_hidden_states),
-            "hidden_size": int(p.hidden_size),
-            "pooling": str(p.pooling),
-            "atom_names": {"object": list(self._atoms[0]), "action": list(self._atoms[1])},
-            "tasks": {int(k): str(v) for k, v in tasks.items()},
-            "num_init_states": int(env.num_init_states),
-        }
+        return RunDescription(
+            model=p.describe(),
+            model_id=p.model_id,
+            num_hidden_states=int(p.num_hidden_states),
+            hidden_size=int(p.hidden_size),
+            pooling=str(p.pooling),
+            atom_names={"object": list(self._atoms[0]), "action": list(self._atoms[1])},
+            tasks={int(k): str(v) for k, v in tasks.items()},
+            num_init_states=int(env.num_init_states),
+        )
 
     def run(self, unit: Unit, seed: int) -> EpisodeResult:
-        """Run one episode from the unit's init state until success or ``env.max_steps`` actions.
+        """Run one episode from the unit's init state (see :func:`vlaprobe.rollout.run_episode`).
 
-        Rows are the observations before each action; a successful episode adds the terminal observation
-        (goal reached, action NaN), so its length is the number of actions + 1."""
+        Rows are the observations before each action. A successful episode ends ``post_success_steps`` rows
+        after the first observation where the task succeeds (the terminal row, action NaN), a failed one
+        after ``env.max_steps`` actions."""
         env = self._env_for(unit.task)
         _seed_everything(seed)
-        obs = env.reset(unit.init)
-        if obs.image is None:
-            raise VlaprobeError(
-                "the simulator renders no image; collect needs rendering (drop --env.no-render)"
-            )
-        expert = self._make_expert(env, seed) if self.cfg.driver == "expert" else None
+        driver = self._make_driver(self.cfg.driver, env, self.policy, seed)
         rows: dict[str, list[Any]] = {k: [] for k in _STEP_ARRAYS}
         world: list[Any] = []
         label_s = 0.0
+        success_step: int | None = None
         start = time.perf_counter()
-        for t in range(self.cfg.env.max_steps + 1):
-            # The row after the last action is recorded too when the goal was reached: it is the only
-            # state in which the goal atom (e.g. on(bowl,plate)) holds. Its executed action is NaN.
-            terminal = obs.success or t == self.cfg.env.max_steps
-            if terminal and not obs.success:
-                break
-            t0 = time.perf_counter()
-            state = env.world_state()
-            obj, act = env.labeler(state)
-            label_s += time.perf_counter() - t0
-            out = self.policy.step(obs.image, env.instruction)
-            if terminal:
-                action = np.full(7, np.nan)
-            elif expert is not None:
-                action = expert.act()
-            else:
-                action = out.action
-            rows["hidden"].append(np.asarray(out.hidden, dtype=np.float16))
-            rows["object_atoms"].append(obj)
-            rows["action_atoms"].append(act)
-            rows["image"].append(out.model_image)
-            rows["proprio"].append(obs.proprio)
-            rows["action"].append(action)
-            rows["predicted_action"].append(out.action)
-            rows["action_tokens"].append(out.action_tokens)
-            rows["step"].append(obs.step)
-            world.append(state)
-            if terminal:
-                break
-            obs = env.step(action)
+        for r in run_episode(
+            env,
+            self.policy,
+            driver,
+            init=unit.init,
+            max_steps=self.cfg.env.max_steps,
+            post_success_steps=self.cfg.post_success_steps,
+        ):
+            label_s += r.timings.label_ms / 1000.0
+            if r.success and success_step is None:
+                success_step = r.t
+            rows["hidden"].append(np.asarray(r.hidden, dtype=np.float16))
+            rows["object_atoms"].append(r.object_atoms)
+            rows["action_atoms"].append(r.action_atoms)
+            rows["image"].append(r.model_image)
+            rows["proprio"].append(r.proprio)
+            rows["action"].append(r.action)
+            rows["predicted_action"].append(r.predicted_action)
+            rows["action_tokens"].append(r.action_tokens)
+            rows["step"].append(r.step)
+            world.append(r.world)
         seconds = time.perf_counter() - start
         arrays = {name: np.asarray(np.stack(rows[name]), dtype=dtype) for name, dtype in _STEP_ARRAYS.items()}
         arrays["hidden"] = np.ascontiguousarray(np.moveaxis(arrays["hidden"], 0, 1))  # (layers, T, ...)
@@ -200,10 +206,11 @@ class Worker:
             task=unit.task,
             init=unit.init,
             attempt=unit.attempt,
-            success=bool(obs.success),
+            success=success_step is not None,
             length=len(world),
             seed=seed,
             driver=self.cfg.driver,
+            success_step=success_step,
         )
         attrs = {
             "instruction": env.instruction,

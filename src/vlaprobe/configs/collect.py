@@ -31,6 +31,12 @@ class CollectConfig:
     max_tries_per_task: int | None = None
     """Try budget: init states 0..K-1 are tried in order until enough succeed. Default: all init states (50).
     A task that runs out is reported, not an error."""
+    post_success_steps: int = 10
+    """Rows recorded after the first observation where the task succeeds (the expert releases the object and
+    lifts the arm; the model keeps observing). 0 ends an episode on its success observation, so the goal
+    atom holds in one row per episode and the 1% label filter drops it; with the default the goal atom
+    ``on(akita_black_bowl_1,plate_1)`` is true in ~8% of the default run's training steps (docs/collection.md).
+    Each episode records its ``success_step`` so analyses can select or exclude the rows after it."""
     keep_failed: bool = False
     """Also store failed episodes (marked success=false) instead of only recording that they were tried."""
     workers: int = 1
@@ -59,3 +65,6 @@ class InfoConfig:
     json: bool = False
     """Print JSON: {"episodes": [{"key", "task", "init", "attempt", "success", "length"}, ...], "layers",
     "hidden_size", "pooling", ...}."""
+    verify: bool = False
+    """Also read every array of every episode (finds truncated or corrupted chunk files; slower). Without it
+    the metadata, shapes and chunk files of every episode are still checked."""

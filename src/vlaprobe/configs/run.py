@@ -1,4 +1,4 @@
-"""Config of ``vlaprobe run``: the whole experiment, collect → train → report, in one folder."""
+"""Config of ``vlaprobe run``: the whole experiment, collect → train → monitor → report, in one folder."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from vlaprobe.configs.collect import CollectConfig
+from vlaprobe.configs.monitor import MonitorConfig
 from vlaprobe.configs.report import ReportConfig
 from vlaprobe.configs.train import TrainConfig
 
@@ -19,12 +20,14 @@ def _default_collect() -> CollectConfig:
 
 @dataclass
 class RunConfig:
-    """Collect hidden states and atoms, train the per-layer probes, and write the report.
+    """Collect hidden states and atoms, train the per-layer probes, run the cognition over the held-out
+    episodes (``vlaprobe monitor``), and write the report.
 
     The embedded default runs on a CPU with no downloads: the scripted expert drives LIBERO-spatial and the
     tiny OpenVLA-shaped model observes. ``--model /path/to/openvla-7b`` (with
     ``--collect.driver policy``) runs the paper's setting instead. The stages' own output paths
-    (``collect.out``, ``train.store``, ``train.out``, ``report.probes``, ``report.out``) are derived from
+    (``collect.out``, ``train.store``, ``train.out``, ``monitor.store``, ``monitor.probes``, ``monitor.out``,
+    ``report.probes``, ``report.out``) are derived from
     ``--out`` and ignored here. The full config is saved as ``<out>/config.json``; ``vlaprobe run --config
     <out>/config.json`` repeats the run (it resumes: complete episodes are kept).
     """
@@ -35,5 +38,7 @@ class RunConfig:
     """Collection settings (driver, model, tasks, episodes per task, workers...)."""
     train: TrainConfig = field(default_factory=TrainConfig)
     """Probe training and evaluation settings."""
+    monitor: MonitorConfig = field(default_factory=MonitorConfig)
+    """Cognition settings (extra --monitor.rules files, debounce...) for the monitor over the test episodes."""
     report: ReportConfig = field(default_factory=ReportConfig)
     """Report settings."""

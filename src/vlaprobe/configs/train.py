@@ -74,6 +74,9 @@ class TrainConfig:
     shuffled_control: bool = True
     """Also train probes on shuffled training labels (same steps, labels permuted across steps) to measure
     selectivity = accuracy - control accuracy."""
+    shuffled_permutations: int = 5
+    """Label permutations trained for the shuffled-label control (extra columns of the same matmuls, so cheap):
+    the report shows their mean and spread, and selectivity is measured against the mean."""
     observer_store: Path | None = None
     """Optional second store of the same kind (e.g. a randomly initialised model observing the same
     episodes), trained and evaluated the same way as a control."""

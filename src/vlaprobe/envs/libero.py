@@ -18,6 +18,7 @@ from vlaprobe.configs.env import EnvConfig
 from vlaprobe.envs.setup import prepare_libero
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.symbols import Articulation, Goal, Labeler, Scene, WorldState
+from vlaprobe.symbols.world import FINGER_GAP_MAX
 
 CAMERA = "agentview"
 NOOP_ACTION = np.array([0, 0, 0, 0, 0, 0, -1], dtype=np.float64)  # gripper open
@@ -39,7 +40,7 @@ class Observation:
 
 @lru_cache(maxsize=4)
 def _benchmark(suite: str) -> Any:
-    prepare_libero()
+    prepare_libero(need_assets=False)  # task lists come from LIBERO's own files, not from the assets
     import contextlib
     import io
 
@@ -186,6 +187,18 @@ class LiberoTaskEnv:
         for offset, key in ((1, "left_finger"), (2, "right_finger")):
             for g in fingers[key]:
                 owner[model.geom_name2id(g)] = n + offset
+        # Geom pairs whose distances give WorldState.finger_gap: (finger geom, object geom) per finger and object.
+        self._finger_pairs = [
+            [
+                [
+                    (model.geom_name2id(f), model.geom_name2id(g))
+                    for f in fingers[key]
+                    for g in e.get_object(name).contact_geoms
+                ]
+                for key in ("left_finger", "right_finger")
+            ]
+            for name in self.scene.pickupable
+        ]
         self._geom_owner = owner
         obj_geoms = np.flatnonzero((owner >= 0) & (owner < n))
         self._aabb_geoms = obj_geoms
@@ -229,6 +242,7 @@ class LiberoTaskEnv:
         for _ in range(self.cfg.settle_steps):
             raw, _, _, _ = self._env.step(NOOP_ACTION)
         self._step = 0
+        self.labeler.reset()  # a new episode: forget the last one's grasp and placing memory
         return self._observation(raw)
 
     def step(self, action: np.ndarray) -> Observation:
@@ -261,6 +275,8 @@ class LiberoTaskEnv:
     # ----- world state ------------------------------------------------------------------------------------
     def world_state(self) -> WorldState:
         """Snapshot the simulator into a :class:`WorldState` (what every detector reads)."""
+        import mujoco  # not at module level: mujoco picks its GL backend at import (see envs.setup)
+
         data = self._mj_data
         model = self._mj_model
         n = len(self.scene.tabletop)
@@ -285,6 +301,10 @@ class LiberoTaskEnv:
             contact[b[keep], a[keep]] = True
         sites = self._site_ids
         robot = self._sim_env.robots[0]
+        # Body velocities (angular, then linear) at each object's origin, world frame.
+        vel = np.zeros((n, 6))
+        for i, body in enumerate(self._body_ids):
+            mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_BODY, int(body), vel[i], 0)
         return WorldState(
             pos=data.xpos[self._body_ids].copy(),
             aabb_lo=lo,
@@ -300,9 +320,28 @@ class LiberoTaskEnv:
             camera_fovy=float(model.cam_fovy[self._cam_id]),
             eef_pos=np.array(self._sim_env.sim.data.site_xpos[robot.eef_site_id]),
             gripper_qpos=data.qpos[robot._ref_gripper_joint_pos_indexes].copy(),
+            gripper_qvel=data.qvel[robot._ref_gripper_joint_vel_indexes].copy(),
+            finger_gap=self._finger_gap(),
             gripper_command=self._gripper_command,
+            lin_vel=vel[:, 3:],
+            ang_vel=vel[:, :3],
             table_height=self._table_height,
         )
+
+    def _finger_gap(self) -> np.ndarray:
+        """(P, 2) distance of each finger to each pickupable object, capped at ``FINGER_GAP_MAX``.
+
+        MuJoCo culls far geom pairs by their bounding spheres (returning 1e10): ~0.3 ms for all pairs.
+        """
+        import mujoco
+
+        model, data, fromto = self._mj_model, self._mj_data, np.zeros(6)
+
+        def distance(pairs: list[tuple[int, int]]) -> float:
+            return min(mujoco.mj_geomDistance(model, data, f, g, FINGER_GAP_MAX, fromto) for f, g in pairs)
+
+        gap = np.array([[distance(pairs) for pairs in per_finger] for per_finger in self._finger_pairs])
+        return np.minimum(gap.reshape(-1, 2), FINGER_GAP_MAX)
 
     def labels(self) -> tuple[np.ndarray, np.ndarray]:
         """(object bits, action bits) of the current state."""

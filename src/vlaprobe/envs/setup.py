@@ -7,6 +7,8 @@ Traps it handles (measured, see ``../shared/LIBERO_NOTES.md``):
   a CI job: we write that config ourselves into a folder we own.
 - LIBERO ignores the config's ``assets`` key: ``get_assets_path()`` uses ``site-packages/libero/libero/assets``
   when it exists, else downloads from a model hub. We set LIBERO's module-level cache to our folder instead.
+- A damaged assets folder (a missing texture, a cut mesh, a malformed XML) would end in a MuJoCo traceback inside
+  robosuite: every file the suite loads is checked first (``vlaprobe.envs.assets``), an error is one line.
 - robosuite forces EGL unless ``MUJOCO_GL`` is ``osmesa`` or ``glx``; on a machine without a GPU we choose
   OSMesa when its library is installed (``libosmesa6``), else Mesa's software EGL.
 """
@@ -16,25 +18,14 @@ from __future__ import annotations
 import ctypes.util
 import os
 from pathlib import Path
+from typing import Any
 
+from vlaprobe.envs.assets import ASSETS_ENV, check_assets
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import write_atomic
 
-ASSETS_ENV = "VLAPROBE_LIBERO_ASSETS"
-
-# Files LIBERO-spatial loads, relative to the assets folder. Checked up front so that a missing file is one
-# clear line instead of a MuJoCo XML error deep inside robosuite.
-SPATIAL_ASSET_FILES: tuple[str, ...] = (
-    "scenes/libero_tabletop_base_style.xml",
-    "articulated_objects/wooden_cabinet.xml",
-    "articulated_objects/flat_stove.xml",
-    "stable_scanned_objects/akita_black_bowl/akita_black_bowl.xml",
-    "stable_scanned_objects/plate/plate.xml",
-    "stable_hope_objects/cookies/cookies.xml",
-    "stable_scanned_objects/glazed_rim_porcelain_ramekin/glazed_rim_porcelain_ramekin.xml",
-)
-
 _prepared_assets: Path | None = None
+_checked_assets: set[Path] = set()
 
 
 def _choose_gl_backend() -> None:
@@ -106,30 +97,69 @@ def _quiet_import_robosuite() -> None:
     logging.getLogger("robosuite_logs").setLevel(logging.ERROR)
 
 
-def resolve_assets(assets: str | Path | None) -> Path | None:
-    """The assets folder to use: the argument, else ``$VLAPROBE_LIBERO_ASSETS``, else None (LIBERO's own)."""
-    chosen = assets if assets is not None else os.environ.get(ASSETS_ENV) or None
-    if chosen is None:
-        return None
-    folder = Path(chosen).expanduser().resolve()
-    if not folder.is_dir():
-        raise VlaprobeError(
-            f"LIBERO assets folder not found: {folder}; set {ASSETS_ENV} (or --env.assets) to LIBERO's assets folder"
-        )
-    for rel in SPATIAL_ASSET_FILES:
-        if not (folder / rel).is_file():
-            raise VlaprobeError(
-                f"LIBERO assets folder {folder} is incomplete: missing {rel}; "
-                f"point {ASSETS_ENV} (or --env.assets) at a complete copy of LIBERO's assets folder"
-            )
+def _checked(folder: Path) -> Path:
+    """``folder`` after :func:`~vlaprobe.envs.assets.check_assets` (once per folder and process)."""
+    if folder not in _checked_assets:
+        check_assets(folder)
+        _checked_assets.add(folder)
     return folder
 
 
-def prepare_libero(assets: str | Path | None = None) -> Path | None:
-    """Set up rendering, LIBERO's config and assets; returns the assets folder in use (None: LIBERO's own)."""
+def resolve_assets(assets: str | Path | None) -> Path | None:
+    """The assets folder to use, checked: the argument, else ``$VLAPROBE_LIBERO_ASSETS``, else None (LIBERO's own)."""
+    if assets is not None:
+        chosen, source = str(assets), "--env.assets"
+    elif ASSETS_ENV in os.environ:
+        chosen, source = os.environ[ASSETS_ENV], ASSETS_ENV
+    else:
+        return None
+    if not chosen.strip():
+        raise VlaprobeError(
+            f"{source} is empty; set it to LIBERO's assets folder (or unset it to use the libero package's own)"
+        )
+    folder = Path(chosen).expanduser().resolve()
+    if not folder.is_dir():
+        what = "is a file, not a folder" if folder.exists() else "not found"
+        raise VlaprobeError(
+            f"LIBERO assets folder {folder} {what}; set {ASSETS_ENV} (or --env.assets) to LIBERO's assets folder"
+        )
+    return _checked(folder)
+
+
+def _libero_own_assets(libero_root: Any) -> Path:
+    """LIBERO's own assets: inside the libero package, else downloaded from the Hugging Face Hub (its chatter,
+    on stdout and stderr, is kept out of the terminal: stdout must stay clean for --json output)."""
+    import contextlib
+    import io
+    import sys
+
+    local = Path(libero_root.__file__).parent / "assets"
+    if not local.is_dir():
+        print(
+            f"vlaprobe: no LIBERO assets in the libero package; downloading them ({ASSETS_ENV} names a local copy)",
+            file=sys.stderr,
+        )
+    chatter = io.StringIO()
+    with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
+        found = Path(libero_root.get_assets_path())
+    if not found.is_dir():
+        raise VlaprobeError(
+            f"LIBERO assets not found (the libero package has none and the download failed); "
+            f"set {ASSETS_ENV} (or --env.assets) to a folder holding LIBERO's assets"
+        )
+    return _checked(found.resolve())
+
+
+def prepare_libero(assets: str | Path | None = None, *, need_assets: bool = True) -> Path | None:
+    """Set up rendering, LIBERO's config and assets; returns the assets folder in use (None: not needed).
+
+    ``need_assets=False`` (listing a suite's tasks) makes LIBERO importable without looking for assets.
+    """
     global _prepared_assets
     _choose_gl_backend()
     _write_libero_config()
+    if not need_assets:
+        return None
     folder = resolve_assets(assets)
     _quiet_import_robosuite()
     import libero.libero as libero_root  # safe now: the config exists
@@ -137,19 +167,8 @@ def prepare_libero(assets: str | Path | None = None) -> Path | None:
     if folder is not None:
         libero_root._assets_path_cache = str(folder)
     elif _prepared_assets is None:
-        # LIBERO's own lookup: its package folder, else a download from a model hub. It reports progress
-        # on stdout, which must stay clean for --json output.
-        import contextlib
-        import sys
-
-        with contextlib.redirect_stdout(sys.stderr):
-            found = Path(libero_root.get_assets_path())
-        missing = [rel for rel in SPATIAL_ASSET_FILES if not (found / rel).is_file()]
-        if missing:
-            raise VlaprobeError(
-                f"LIBERO assets not found (no {found / missing[0]}) and LIBERO could not download them; "
-                f"set {ASSETS_ENV} (or --env.assets) to a folder holding LIBERO's assets"
-            )
-        folder = found
+        folder = _libero_own_assets(libero_root)
+    else:
+        folder = _prepared_assets
     _prepared_assets = folder
     return folder

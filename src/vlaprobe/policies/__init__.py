@@ -1,8 +1,10 @@
 """Policies that act in LIBERO: VLA models exposing their hidden states, and the scripted expert.
 
-``load_policy`` imports torch only when called, so importing this package stays cheap.
+:func:`make_policy` (from a :class:`~vlaprobe.configs.policy.PolicyConfig`) and :func:`load_policy` (the same
+with keyword arguments) import torch only when called, so importing this package stays cheap.
 """
 
-from vlaprobe.policies.base import POOLINGS, PolicyStep, Pooling, VLAPolicy, load_policy
+from vlaprobe.policies.base import POOLINGS, PolicyStep, Pooling, VLAPolicy
+from vlaprobe.policies.factory import load_policy, make_policy
 
-__all__ = ["POOLINGS", "PolicyStep", "Pooling", "VLAPolicy", "load_policy"]
+__all__ = ["POOLINGS", "PolicyStep", "Pooling", "VLAPolicy", "load_policy", "make_policy"]

@@ -1,7 +1,7 @@
 """The policy interface the rest of the pipeline sees: one image and instruction in, one action and every
 layer's hidden state out, from one step of work.
 
-This module stays light (numpy only): the torch models are imported by :func:`load_policy` on demand.
+This module stays light (numpy only) and knows no implementation: ``vlaprobe.policies.factory`` builds them.
 """
 
 from __future__ import annotations
@@ -62,36 +62,3 @@ class VLAPolicy(Protocol):
     def describe(self) -> dict[str, Any]:
         """JSON-ready metadata: model id, config, dims, pooling, dtype, device."""
         ...
-
-
-def load_policy(
-    model: str,
-    pooling: Pooling = "last_prompt",
-    device: str = "auto",
-    seed: int = 0,
-    *,
-    unnorm_key: str = "libero_spatial",
-    center_crop: bool = True,
-    preprocessing: Literal["numpy", "tf"] = "numpy",
-) -> VLAPolicy:
-    """Load a policy.
-
-    ``model``: "tiny" for the embedded tiny OpenVLA built deterministically from ``seed`` (no file needed),
-    else a checkpoint folder: an official OpenVLA one (config.json, *.safetensors shards (+ index),
-    dataset_statistics.json or norm_stats in config.json, tokenizer.json) or one written by
-    ``OpenVLAPolicy.save_pretrained``. ``device``: "auto" (CUDA + bf16 when available, else CPU + fp32),
-    "cpu", "cuda" or "cuda:N". ``unnorm_key``: the action statistics to use (OpenVLA's LIBERO eval falls
-    back to "<key>_no_noops"). ``center_crop``: OpenVLA's 0.9-area centre crop, needed by the LIBERO
-    fine-tunes (trained with random crops). ``preprocessing``: "numpy" (exact re-implementation) or "tf".
-    """
-    from vlaprobe.policies.openvla.policy import OpenVLAPolicy
-
-    return OpenVLAPolicy.load(
-        model,
-        pooling=pooling,
-        device=device,
-        seed=seed,
-        unnorm_key=unnorm_key,
-        center_crop=center_crop,
-        preprocessing=preprocessing,
-    )

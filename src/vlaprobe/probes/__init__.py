@@ -5,10 +5,29 @@ Typical use (``docs/probing.md`` has the method)::
     out = train_probes(TrainConfig(store=Path("runs/x/activations")))
     probes = ProbeSet.load(out, model_id=..., pooling=...)
     probes.predict(hidden_states)  # {atom: 0/1} at each head's best layer
+
+The names below are imported on first use, so that ``vlaprobe.probes.results`` (the evaluation's
+dataclasses, read by the report) loads without torch.
 """
 
-from vlaprobe.probes.data import ProbeData, load_store, synthetic_data
-from vlaprobe.probes.probeset import ProbeSet
-from vlaprobe.probes.train import train_on_data, train_probes
+from __future__ import annotations
 
-__all__ = ["ProbeData", "ProbeSet", "load_store", "synthetic_data", "train_on_data", "train_probes"]
+import importlib
+from typing import Any
+
+_EXPORTS = {
+    "ProbeData": "vlaprobe.probes.data",
+    "load_store": "vlaprobe.probes.data",
+    "synthetic_data": "vlaprobe.probes.data",
+    "ProbeSet": "vlaprobe.probes.probeset",
+    "train_on_data": "vlaprobe.probes.train",
+    "train_probes": "vlaprobe.probes.train",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'vlaprobe.probes' has no attribute {name!r}")
+    return getattr(importlib.import_module(_EXPORTS[name]), name)

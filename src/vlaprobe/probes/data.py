@@ -88,7 +88,10 @@ def load_store(
     """
     from vlaprobe.collection.store import ActivationStore
 
+    from vlaprobe.collection.verify import require_intact
+
     store = ActivationStore.open(path)
+    require_intact(path)  # a missing chunk would read as zeros; truncated ones fail when read (one line too)
     missing = [h for h in heads if h not in store.atom_names]
     if missing:
         raise VlaprobeError(

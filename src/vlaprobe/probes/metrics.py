@@ -5,8 +5,12 @@ draws test episodes with replacement, so its counts are a weighted sum of the pe
 accuracy, balanced accuracy and F1 of a thousand resamples cost one small matmul. AUPRC needs the ranking
 of scores: every column is sorted once and each resample only reweights the sorted rows.
 
-A metric that is undefined (F1 or AUPRC with no positives, a recall with no members of its class) is NaN
-and left out of averages; :func:`summarize` reports how many atoms each average covers.
+A metric that is undefined (F1 or AUPRC with no positive step, a recall with no members of its class) is NaN
+and left out of averages; :func:`summarize` reports how many atoms each average covers. A bootstrap resample
+that lacks a class the full test set has (e.g. none of an atom's positive episodes was drawn) leaves the
+atom's balanced accuracy and F1 undefined in that resample, as they would be on such a test set, instead of
+scoring only the class that is left (which biased the intervals upward); each figure records in how many
+resamples it was defined.
 """
 
 from __future__ import annotations
@@ -48,14 +52,15 @@ def confusion_by_group(
 
 
 def metrics_from_counts(counts: np.ndarray) -> dict[str, np.ndarray]:
-    """accuracy, balanced accuracy (mean of the defined class recalls) and F1 from (..., 4) counts."""
+    """accuracy, balanced accuracy (mean of the defined class recalls) and F1 (undefined without a positive
+    step, whatever the false positives) from (..., 4) counts."""
     tp, fp, fn, tn = (counts[..., i] for i in range(4))
     with np.errstate(invalid="ignore", divide="ignore"):
         accuracy = (tp + tn) / (tp + fp + fn + tn)
         recalls = np.stack([tp / (tp + fn), tn / (tn + fp)])
         defined = ~np.isnan(recalls)
         balanced = np.where(defined.any(0), np.nansum(recalls, 0) / defined.sum(0), np.nan)
-        f1 = np.where(tp + fp + fn > 0, 2 * tp / (2 * tp + fp + fn), np.nan)
+        f1 = np.where(tp + fn > 0, 2 * tp / (2 * tp + fp + fn), np.nan)
     return {"accuracy": accuracy, "balanced_accuracy": balanced, "f1": f1}
 
 
@@ -118,8 +123,16 @@ def atom_metrics(
     ``auprc_resamples`` rows of ``weights`` (an empty array when 0).
     """
     counts = confusion_by_group(logits > threshold_logit, truth, groups, num_groups)
-    point = metrics_from_counts(counts.sum(0))
-    resampled = metrics_from_counts(np.einsum("rg,glac->rlac", weights, counts))
+    total = counts.sum(0)
+    point = metrics_from_counts(total)
+    resampled_counts = np.einsum("rg,glac->rlac", weights, counts)
+    resampled = metrics_from_counts(resampled_counts)
+    # A class present in the test set but absent from a resample: the class-balanced metrics are undefined.
+    positives, negatives = total[..., 0] + total[..., 2], total[..., 1] + total[..., 3]
+    r_pos = resampled_counts[..., 0] + resampled_counts[..., 2]
+    r_neg = resampled_counts[..., 1] + resampled_counts[..., 3]
+    missing = ((positives > 0) & (r_pos == 0)) | ((negatives > 0) & (r_neg == 0))
+    resampled["balanced_accuracy"] = np.where(missing, np.nan, resampled["balanced_accuracy"])
     layers, _, atoms = logits.shape
     columns = logits.permute(1, 0, 2).reshape(logits.shape[1], layers * atoms)
     truth_cols = torch.as_tensor(np.asarray(truth, bool)).repeat(1, layers)
@@ -155,6 +168,12 @@ def _nanmean(x: np.ndarray, axis: int) -> np.ndarray:
         return np.where(defined.any(axis), np.nansum(x, axis) / defined.sum(axis), np.nan)
 
 
+def _complete(point: np.ndarray, resampled: np.ndarray, axis_atoms: list[np.ndarray]) -> np.ndarray:
+    """Per group of atom columns: resamples in which every atom defined at the point was defined too."""
+    missing = np.isnan(resampled) & ~np.isnan(point)[None]  # (resamples, layers, atoms)
+    return np.stack([(~missing[:, :, g].any(2)).sum(0) for g in axis_atoms], 1)
+
+
 def summarize(
     point: np.ndarray, resampled: np.ndarray, groups: list[np.ndarray]
 ) -> dict[str, dict[str, np.ndarray]]:
@@ -162,19 +181,32 @@ def summarize(
 
     ``point`` is (layers, atoms), ``resampled`` (resamples, layers, atoms). Each level gets its value and a
     95% percentile interval computed from the same resamples (so intervals of averages are correct,
-    not averages of intervals); ``count`` says how many atoms were defined in each average.
+    not averages of intervals); ``count`` says how many atoms were defined in each average and ``defined`` in
+    how many resamples the figure was defined over all of its atoms (an atom: in which it was defined).
     """
     out: dict[str, dict[str, np.ndarray]] = {}
     low, high = _interval(resampled)
-    out["atom"] = {"value": point, "low": low, "high": high}
+    out["atom"] = {"value": point, "low": low, "high": high, "defined": (~np.isnan(resampled)).sum(0)}
     pred_point = np.stack([_nanmean(point[:, g], 1) for g in groups], 1)
     pred_res = (
         np.stack([_nanmean(resampled[:, :, g], 2) for g in groups], 2) if groups else resampled[..., :0]
     )
     low, high = _interval(pred_res)
     counts = np.stack([(~np.isnan(point[:, g])).sum(1) for g in groups], 1)
-    out["predicate"] = {"value": pred_point, "low": low, "high": high, "count": counts}
+    out["predicate"] = {
+        "value": pred_point,
+        "low": low,
+        "high": high,
+        "count": counts,
+        "defined": _complete(point, resampled, groups),
+    }
     layer_res = _nanmean(resampled, 2)
     low, high = _interval(layer_res)
-    out["layer"] = {"value": _nanmean(point, 1), "low": low, "high": high, "count": (~np.isnan(point)).sum(1)}
+    out["layer"] = {
+        "value": _nanmean(point, 1),
+        "low": low,
+        "high": high,
+        "count": (~np.isnan(point)).sum(1),
+        "defined": _complete(point, resampled, [np.arange(point.shape[1])])[:, 0],
+    }
     return out

@@ -1,7 +1,9 @@
 """Ground-truth detectors: a world-state snapshot in, the truth value of every atom out.
 
-Each detector is a vectorized pure function of ``(Scene, WorldState)``; :class:`Labeler` assembles them into
-the vocabulary's order. Definitions and thresholds (see also ``docs/symbols.md``):
+Each detector is a vectorized pure function of ``(Scene, WorldState)`` (the action atoms also take what the
+:class:`Labeler` remembers of the episode: the object held, whether a released object is settling);
+:class:`Labeler` assembles them into the vocabulary's order. Definitions and thresholds (see also
+``docs/symbols.md``):
 
 Spatial relations are judged **from the viewpoint of the image the model is given**: OpenVLA's LIBERO
 preprocessing rotates the raw agentview render by 180°, and since MuJoCo's raw render is only flipped upside
@@ -28,13 +30,25 @@ of its collision-geom bounding box.
   into the world, 1 cm of slack below).
 - ``open(c)``, ``turned-on(k)``: LIBERO's thresholds on the joint: a wooden-cabinet drawer is open below
   -0.14 (``default_open_ranges``), the flat stove is on at 0.5 or more (``default_turnon_ranges``).
-- ``grasped(a)``: the gripper is commanded closed, the fingers are not shut on nothing (opening > 2 mm), and
-  either finger touches ``a`` or the grip point lies within 1.5 cm of ``a``'s box. robosuite's two-pad contact
-  check flickers while a bowl is held by its rim (one pad slips off the thin wall); any finger geom or the
-  grip point inside the object's box is stable. At most one object is grasped: with several candidates the
-  touching one whose box centre is nearest the grip point wins.
-- ``should-move-towards(a)``: the object to pick (the goal's first argument) until it is grasped; then the
-  place target; nothing once the goal holds and the object is released.
+- ``grasped(a)``: the physical grasp, not the gripper command. A finger *touches* ``a`` when MuJoCo reports a
+  contact between one of its collision geoms (pad included) and ``a``'s. A grasp **starts** when both fingers
+  touch ``a``. It **lasts** while at least one finger still touches it: robosuite's two-pad check flickers
+  while a bowl is held by its rim (one pad slides off the thin wall and only the finger's side touches); the
+  finger that still presses keeps it held. It also lasts through a **slip**: while a bowl slides down into a
+  firmer pinch, both fingers can hang 0.02-0.47 mm off its wall at the instant of a snapshot, closing at
+  25-70 mm/s (measured over 30 expert episodes: 13 of 1,669 held rows); a finger within ``SLIP_GAP`` = 1 mm
+  while the fingers close faster than ``FINGER_SPEED`` = 5 mm/s keeps the grasp. It **ends** when no finger
+  touches ``a`` (nor is catching it), when the fingers open faster than ``FINGER_SPEED`` (letting go: a held
+  grip drifts open by under 0.2 mm/s, an open command opens it at 20-45 mm/s), or when they are shut on nothing
+  (opening below ``GRIP_MIN_OPENING`` = 2 mm; a bowl's wall holds them ~4.5 mm apart). At most one object is
+  grasped: the one already held, else among those both fingers touch the one whose box centre is nearest the
+  grip point. Stateful (the object held at the previous step): :meth:`Labeler.reset` at every episode start.
+- ``should-move-towards(a)``: exactly one target while the goal ``on(pick, place)`` does not hold: the object
+  to pick until it is grasped; then the place target, which **stays** the target after a release until the
+  released object comes to rest (``resting``: touching the table or another object, moving slower than
+  ``REST_SPEED`` = 1 cm/s and turning slower than ``REST_SPIN`` = 0.1 rad/s; a bowl dropped from 1.5 cm
+  rests 4-5 steps later); resting away from the target, the object to pick is the target again. Nothing
+  while the goal holds and the object is not grasped.
 """
 
 from __future__ import annotations
@@ -50,8 +64,11 @@ ON_XY_RADIUS = 0.03  # LIBERO ObjectState.check_ontop
 SURFACE_BELOW, SURFACE_ABOVE = 0.005, 0.10  # LIBERO SiteObject.under
 INSIDE_SLACK_BELOW = 0.01  # LIBERO SiteObject.in_box
 FIXTURE_TABLE_GAP = 0.02
-GRIP_NEAR = 0.015
-GRIP_MIN_OPENING = 0.002
+GRIP_MIN_OPENING = 0.002  # m between the fingers: below, they are shut on nothing
+FINGER_SPEED = 0.005  # m/s: opening faster, the fingers let go; closing faster, they chase a slipping object
+SLIP_GAP = 0.001  # m: a finger this close to a slipping held object still holds it
+REST_SPEED = 0.01  # m/s: a released object moving slower (and turning slower than REST_SPIN) has come to rest
+REST_SPIN = 0.1  # rad/s
 
 
 def centers(state: WorldState) -> np.ndarray:
@@ -135,30 +152,49 @@ def inside_matrix(scene: Scene, state: WorldState) -> np.ndarray:
     return np.all((p > lo[None]) & (p < hi[None]), axis=-1)
 
 
-def grasped_vector(scene: Scene, state: WorldState) -> np.ndarray:
-    """(P,) grasped(a): at most one True (see module doc)."""
+def grasped_vector(scene: Scene, state: WorldState, held: int = -1) -> np.ndarray:
+    """(P,) grasped(a), at most one True, given the object ``held`` at the previous step (-1: none).
+
+    See the module doc: both fingers touching start a grasp, one finger (or fingers closing on a slipping object)
+    keeps it, opening fingers end it.
+    """
     n_pick = len(scene.pickupable)
-    n = len(scene.tabletop)
     out = np.zeros(n_pick, dtype=bool)
     opening = float(state.gripper_qpos[0] - state.gripper_qpos[1])
-    if state.gripper_command <= 0 or opening <= GRIP_MIN_OPENING:
+    opening_speed = float(state.gripper_qvel[0] - state.gripper_qvel[1])
+    if opening <= GRIP_MIN_OPENING or opening_speed > FINGER_SPEED:
         return out
-    touch = state.contact[:n_pick, n + 1] | state.contact[:n_pick, n + 2]
-    lo = state.aabb_lo[:n_pick] - GRIP_NEAR
-    hi = state.aabb_hi[:n_pick] + GRIP_NEAR
-    near = np.all((state.eef_pos > lo) & (state.eef_pos < hi), axis=1)
-    candidates = touch | near
-    if not candidates.any():
-        return out
-    dist = np.linalg.norm(centers(state)[:n_pick] - state.eef_pos, axis=1)
-    rank = np.where(touch, 0.0, 1e3) + dist  # touching objects first, then nearest
-    rank[~candidates] = np.inf
-    out[int(np.argmin(rank))] = True
+    n = len(scene.tabletop)
+    left = state.contact[:n_pick, n + 1]
+    right = state.contact[:n_pick, n + 2]
+    if 0 <= held < n_pick:
+        slipping = opening_speed < -FINGER_SPEED and float(state.finger_gap[held].min()) <= SLIP_GAP
+        if left[held] or right[held] or slipping:
+            out[held] = True
+            return out
+    pinched = left & right
+    if pinched.any():
+        dist = np.linalg.norm(centers(state)[:n_pick] - state.eef_pos, axis=1)
+        out[int(np.argmin(np.where(pinched, dist, np.inf)))] = True
     return out
 
 
+def resting(scene: Scene, state: WorldState, i: int) -> bool:
+    """Object ``i`` has come to rest: it touches the table or another object and barely moves."""
+    n = len(scene.tabletop)
+    supported = bool(state.contact[i, : n + 1].any())  # tabletop objects and the table (never itself)
+    speed = float(np.linalg.norm(state.lin_vel[i]))
+    spin = float(np.linalg.norm(state.ang_vel[i]))
+    return supported and speed < REST_SPEED and spin < REST_SPIN
+
+
 class Labeler:
-    """Turns world states into label vectors in the vocabulary's order (object head, action head)."""
+    """Turns world states into label vectors in the vocabulary's order (object head, action head).
+
+    Stateful along an episode (which object is held, whether a released object is still settling): call
+    :meth:`reset` at each episode start, then the labeler once per step, in order. Relabelling an episode's
+    stored world states with a fresh (or reset) labeler gives the labels recorded with them.
+    """
 
     def __init__(self, scene: Scene, goal: Goal) -> None:
         self.scene = scene
@@ -175,6 +211,12 @@ class Labeler:
         n_pick = len(scene.pickupable)
         self._on_mask = np.ones((n_pick, n), dtype=bool)
         self._on_mask[np.arange(n_pick), np.arange(n_pick)] = False
+        self.reset()
+
+    def reset(self) -> None:
+        """Start a new episode: nothing held, nothing being placed."""
+        self._held = -1
+        self._placing = False
 
     def __call__(self, state: WorldState) -> tuple[np.ndarray, np.ndarray]:
         """(object bits (224,), action bits (12,)) as bool arrays."""
@@ -182,7 +224,8 @@ class Labeler:
         n = len(scene.tabletop)
         rel = spatial(state)
         on = on_matrix(scene, state)
-        grasped = grasped_vector(scene, state)
+        grasped = grasped_vector(scene, state, self._held)
+        self._held = int(np.argmax(grasped)) if grasped.any() else -1
         held = np.zeros(n, dtype=bool)
         held[: len(grasped)] = grasped
         on_table = state.contact[:n, n].copy()
@@ -213,6 +256,10 @@ class Labeler:
         )
         towards = np.zeros(n, dtype=bool)
         if grasped[self._pick]:
+            self._placing = True
+        elif self._placing and resting(scene, state, self._pick):
+            self._placing = False
+        if grasped[self._pick] or (self._placing and not on[self._pick, self._place]):
             towards[self._place] = True
         elif not on[self._pick, self._place]:
             towards[self._pick] = True
@@ -220,7 +267,7 @@ class Labeler:
         return obj, act
 
     def as_dict(self, state: WorldState) -> tuple[dict[str, int], dict[str, int]]:
-        """Atom name -> 0/1 for both heads."""
+        """Atom name -> 0/1 for both heads (one labeler step, like calling the labeler)."""
         obj, act = self(state)
         return (
             dict(zip(self.vocabulary.object_atoms, obj.astype(int).tolist(), strict=True)),

@@ -10,6 +10,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+FINGER_GAP_MAX = 0.01
+"""Finger-object distances beyond this (metres) are recorded as this."""
+
 # Extra rows/columns of ``WorldState.contact`` after the tabletop objects, in this order.
 TABLE, LEFT_FINGER, RIGHT_FINGER = "table", "left_finger", "right_finger"
 EXTRA_CONTACT_BODIES: tuple[str, ...] = (TABLE, LEFT_FINGER, RIGHT_FINGER)
@@ -87,7 +90,8 @@ class WorldState:
     aabb_hi: np.ndarray
     """(N, 3) upper corner, same."""
     contact: np.ndarray
-    """(N + 3, N + 3) symmetric bool: tabletop objects, then table, left finger, right finger in contact."""
+    """(N + 3, N + 3) symmetric bool: tabletop objects, then table, left finger, right finger in contact (a finger
+    is any of its collision geoms, pad included)."""
     region_pos: np.ndarray
     """(R, 3) site positions of ``scene.regions``."""
     region_mat: np.ndarray
@@ -107,8 +111,18 @@ class WorldState:
     eef_pos: np.ndarray
     """(3,) end-effector position."""
     gripper_qpos: np.ndarray
-    """(2,) finger joint positions (each ~0.04 when fully open, ~0 when closed on nothing)."""
+    """(2,) finger joint positions (left ~+0.04, right ~-0.04 when fully open; both ~0 when closed on nothing):
+    the opening between the fingers is ``gripper_qpos[0] - gripper_qpos[1]``."""
+    gripper_qvel: np.ndarray
+    """(2,) finger joint velocities (m/s); the fingers are opening when ``gripper_qvel[0] - gripper_qvel[1] > 0``."""
+    finger_gap: np.ndarray
+    """(P, 2) distance from the left / right finger (its collision geoms, pad included) to each pickupable object
+    (metres; <= 0 when they touch, i.e. MuJoCo reports a contact; capped at ``FINGER_GAP_MAX``)."""
     gripper_command: float
-    """Last gripper command sent (-1 open, +1 close); -1 after a reset."""
+    """Last gripper command sent (-1 open, +1 close); -1 after a reset. Recorded, not used by the detectors."""
+    lin_vel: np.ndarray
+    """(N, 3) linear velocity of each tabletop object's body origin (world frame, m/s; 0 for welded fixtures)."""
+    ang_vel: np.ndarray
+    """(N, 3) angular velocity of each tabletop object (world frame, rad/s)."""
     table_height: float
     """Height of the table top (z of its collision box's upper face)."""

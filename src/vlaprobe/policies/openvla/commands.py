@@ -4,29 +4,20 @@ from __future__ import annotations
 
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 
-from vlaprobe.configs.policy import ModelInfoConfig, PolicyConfig, SaveTinyConfig
-from vlaprobe.policies.base import VLAPolicy, load_policy
-
-
-def policy_from_config(cfg: PolicyConfig) -> VLAPolicy:
-    """``load_policy`` with every field of a :class:`PolicyConfig`."""
-    return load_policy(
-        cfg.model,
-        cfg.pooling,
-        cfg.device,
-        cfg.seed,
-        unnorm_key=cfg.unnorm_key,
-        center_crop=cfg.center_crop,
-        preprocessing=cfg.preprocessing,
-    )
+from vlaprobe.configs.checks import check_seed
+from vlaprobe.configs.policy import ModelInfoConfig, SaveTinyConfig
+from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import check_output_folder
+from vlaprobe.policies.factory import make_policy
 
 
 def model_info(cfg: ModelInfoConfig) -> int:
     """Print the policy's description (and optionally one timed step) as JSON."""
-    policy = policy_from_config(cfg.policy)
+    policy = make_policy(cfg.policy)
     info = policy.describe()
     if cfg.step:
         y, x = np.mgrid[0:256, 0:256]
@@ -47,6 +38,23 @@ def save_tiny(cfg: SaveTinyConfig) -> int:
     """Write the tiny model for ``cfg.seed`` to ``cfg.out``."""
     from vlaprobe.policies.openvla.policy import OpenVLAPolicy
 
+    check_seed(cfg.seed, "--seed")
+    check_checkpoint_folder(cfg.out)
     OpenVLAPolicy.tiny(seed=cfg.seed, device="cpu").save_pretrained(cfg.out)
     print(f"wrote tiny OpenVLA (seed {cfg.seed}) to {cfg.out}")
     return 0
+
+
+CHECKPOINT_FILES = frozenset({"config.json", "model.safetensors"})
+"""What ``save-tiny`` writes; a folder holding anything else is not overwritten."""
+
+
+def check_checkpoint_folder(out: Path) -> None:
+    """Refuse an ``out`` that holds more than a tiny checkpoint (a run, a store...), before writing."""
+    check_output_folder(out)
+    if out.is_dir():
+        foreign = sorted(p.name for p in out.iterdir() if p.name not in CHECKPOINT_FILES and not p.name.startswith("."))
+        if foreign:
+            raise VlaprobeError(
+                f"--out {out} holds other files ({', '.join(foreign[:4])}); choose an empty or new folder"
+            )

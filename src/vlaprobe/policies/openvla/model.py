@@ -112,7 +112,7 @@ class OpenVLA(nn.Module):
         tokens = [logits[-1].argmax(-1)]
         decoder = CachedDecoder(
             lm,
-            out.past_key_values,
+            out["cache"] if "cache" in out else out.past_key_values,  # transformers 5.2x renamed it (and warns)
             out.last_hidden_state.shape[1],
             ACTION_DIM - 1,
             record=per_step is not None,

@@ -14,8 +14,8 @@ What OpenVLA's ``run_libero_eval.py`` does to each frame, in order (every step r
    gets its own normalisation, DINOv2 with the bf16-rounded ImageNet constants the released processor
    stores, SigLIP with 0.5 / 0.5; the 6 channels are stacked DINOv2 first.
 
-The default backend ("numpy") recomputes steps 2–4 in numpy with TensorFlow's exact arithmetic (integer
-libjpeg for the JPEG, float32 kernels for the two resamplers). The "tf" backend runs TensorFlow itself
+The default backend ("numpy") reproduces steps 2–4 with TensorFlow's exact arithmetic (Pillow's encoder and
+libjpeg-turbo's fast IDCT through simplejpeg for the JPEG, float32 numpy kernels for the two resamplers). The "tf" backend runs TensorFlow itself
 (``pip install vlaprobe[tf]``) and is the reference.
 """
 

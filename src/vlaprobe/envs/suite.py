@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import json
 
-from vlaprobe.configs.inspect import AtomsConfig, TasksConfig
-from vlaprobe.envs.libero import LiberoTaskEnv, suite_tasks
-from vlaprobe.envs.setup import prepare_libero
+from vlaprobe.configs.suite import AtomsConfig, TasksConfig
+from vlaprobe.envs import make_env
+from vlaprobe.envs.libero import suite_tasks
 
 
 def tasks(cfg: TasksConfig) -> int:
-    """Print the suite's tasks: index and instruction."""
-    prepare_libero(cfg.env.assets)
+    """Print the suite's tasks: index and instruction (needs no LIBERO assets)."""
     rows = suite_tasks(cfg.env.suite)
     if cfg.json:
         print(json.dumps([{"task": i, "instruction": text} for i, text in rows]))
@@ -23,8 +22,8 @@ def tasks(cfg: TasksConfig) -> int:
 
 def read_atoms(cfg: AtomsConfig) -> dict[str, object]:
     """Build the task, reset to the settled init state and evaluate every atom."""
-    env_cfg = cfg.env
-    with LiberoTaskEnv(cfg.task, env_cfg) as env:
+    env = make_env(cfg.task, cfg.env)
+    try:
         env.reset(cfg.init)
         obj, act = env.labeler.as_dict(env.world_state())
         return {
@@ -34,6 +33,8 @@ def read_atoms(cfg: AtomsConfig) -> dict[str, object]:
             "object": obj,
             "action": act,
         }
+    finally:
+        env.close()
 
 
 def atoms(cfg: AtomsConfig) -> int:

@@ -1,4 +1,4 @@
-"""Configs of the inspection commands ``vlaprobe tasks`` and ``vlaprobe atoms``."""
+"""Configs of the suite commands ``vlaprobe tasks`` and ``vlaprobe atoms``."""
 
 from __future__ import annotations
 

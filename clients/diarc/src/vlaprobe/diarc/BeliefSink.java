@@ -1,0 +1,36 @@
+package vlaprobe.diarc;
+
+import java.util.List;
+import java.util.Set;
+
+/**
+ * THE adapter point to DIARC: where the per-step belief differences go.
+ *
+ * <p>A DIARC component implements this with its belief interface, one call per step and set, e.g.
+ *
+ * <pre>
+ *   public void assertBeliefs(Set&lt;String&gt; terms) {
+ *     Set&lt;Term&gt; ts = terms.stream().map(Factory::createPredicate).collect(Collectors.toSet());
+ *     TRADE.getAvailableService(new TRADEServiceConstraints().name("assertBeliefs").argTypes(Set.class, MemoryLevel.class))
+ *          .call(void.class, ts, MemoryLevel.WORKING);
+ *   }
+ * </pre>
+ *
+ * and the same for {@code retractBeliefs}. Terms arrive in DIARC's spelling, e.g. {@code left_of(akita_black_bowl_1,plate_1)}.
+ */
+public interface BeliefSink {
+    /** Terms newly believed at this step (one call per step; never called with an empty set). */
+    void assertBeliefs(Set<String> terms);
+
+    /** Terms no longer believed at this step (one call per step; never called with an empty set). */
+    void retractBeliefs(Set<String> terms);
+
+    /** The consistency violations active at this step (rule id and message each); called every step. */
+    default void violations(int t, List<String> active) {}
+
+    /** A new episode begins: a DIARC component may clear its WORKING memory here. */
+    default void episodeStart(String episodeId, String instruction) {}
+
+    /** The episode is over. */
+    default void episodeEnd(String episodeId, boolean success, int steps) {}
+}

@@ -1,0 +1,315 @@
+"""`vlaprobe monitor`: measure the cognition on stored episodes, fed by ground truth and by the probes.
+
+Each episode (default: the probes' held-out test episodes) runs twice through a fresh :class:`Cognition`: on
+the stored ground-truth atoms and on the probes' predictions (each head at its best layer, not-probed atoms at
+their training majority). The figures compare the two runs step by step; ``monitor.json`` holds them with the
+per-rule and per-episode details.
+
+Counting: a violation is counted once when it appears (not once per step it lasts); flips are changes of a
+probed atom between consecutive steps, before (raw predictions) and after debouncing (beliefs).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import Counter
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vlaprobe.cognition.core import Cognition, CognitionStep
+from vlaprobe.cognition.readout import HEADS, ProbeReadout
+from vlaprobe.configs.monitor import MonitorConfig
+from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import write_atomic
+from vlaprobe.symbols.world import Goal
+
+MONITOR_FILE = "monitor.json"
+EVALUATION_FILE = "evaluation.json"
+
+
+@dataclass(frozen=True)
+class ViolationFigures:
+    """Violations of one run (truth or probes) over all episodes."""
+
+    violations_per_100_steps: float
+    violations: dict[str, int]
+    """Rule id -> violations that appeared (every shipped rule listed, 0 included)."""
+
+
+@dataclass(frozen=True)
+class GoalDetection:
+    """Goal reached from predictions vs from truth, over episodes."""
+
+    precision: float | None
+    """Of the episodes where the predictions reached the goal, the share where truth did too (None: none did)."""
+    recall: float | None
+    """Of the episodes where truth reached the goal, the share where the predictions did too."""
+    mean_delay_steps: float | None
+    """Mean of (predicted step - true step) over episodes where both reached it; negative: early."""
+
+
+@dataclass(frozen=True)
+class ProbeFigures(ViolationFigures):
+    """The run on the probes' predictions, compared with the run on truth."""
+
+    goal_detection: GoalDetection = field(default_factory=lambda: GoalDetection(None, None, None))
+    subgoal_accuracy: float = math.nan
+    """Share of steps whose active subgoal (predictions) equals the one from truth."""
+    belief_agreement: float = math.nan
+    """Share of (step, probed atom) pairs whose belief (predictions) equals the belief from truth."""
+    flips_per_step: float = math.nan
+    """Changes of probed atoms between consecutive steps in the raw predictions, per step."""
+    flips_per_step_debounced: float = math.nan
+    """The same in the debounced beliefs."""
+
+
+@dataclass(frozen=True)
+class EpisodeFigures:
+    """One episode's comparison."""
+
+    key: str
+    steps: int
+    goal_step_truth: int | None
+    goal_step_probes: int | None
+    violations_truth: int
+    violations_probes: int
+    subgoal_accuracy: float
+
+
+@dataclass(frozen=True)
+class MonitorResult:
+    """What `vlaprobe monitor` measured (the JSON printed with --json is :meth:`summary`)."""
+
+    episodes: int
+    steps: int
+    truth: ViolationFigures
+    probes: ProbeFigures
+    held_out: bool
+    """Whether the episodes are held out from the probes' training (False with --all-episodes or refit probes)."""
+    layers: dict[str, int]
+    debounce: int
+    rules: list[str]
+    per_episode: list[EpisodeFigures]
+
+    def summary(self) -> dict[str, Any]:
+        """The figures of the issue's JSON: episodes, steps, truth, probes."""
+        return {
+            "episodes": self.episodes,
+            "steps": self.steps,
+            "truth": asdict(self.truth),
+            "probes": asdict(self.probes),
+        }
+
+    def to_json(self) -> dict[str, Any]:
+        return {"format": "vlaprobe-monitor", "format_version": 1, **asdict(self)}
+
+
+@dataclass
+class _Run:
+    """Per-step record of one cognition run over one episode."""
+
+    steps: list[CognitionStep]
+    beliefs: np.ndarray  # (T, atoms) bool
+
+    @property
+    def goal_step(self) -> int | None:
+        return next((s.t for s in self.steps if s.goal_reached), None)
+
+    def active(self) -> np.ndarray:
+        return np.array([next((g.index for g in s.subgoals if g.status != "done"), 5) for s in self.steps])
+
+    def new_violations(self) -> Counter[str]:
+        return Counter(v.rule for s in self.steps for v in s.violations if v.since == s.t)
+
+
+def _run(cog: Cognition, obj: np.ndarray, act: np.ndarray) -> _Run:
+    cog.reset()
+    steps, beliefs = [], np.zeros((len(obj), len(cog.atoms)), dtype=bool)
+    for t in range(len(obj)):
+        steps.append(cog.step(obj[t], act[t]))
+        beliefs[t] = cog.beliefs.values
+    return _Run(steps, beliefs)
+
+
+def _episodes(cfg: MonitorConfig, store: Any, probes_meta: dict[str, Any]) -> tuple[list[str], bool]:
+    keys = [e.key for e in store.episodes()]
+    if cfg.all_episodes:
+        return keys, False
+    path = cfg.probes / EVALUATION_FILE
+    try:
+        test = json.loads(path.read_text())["split"]["test_episodes"]
+    except (OSError, ValueError, KeyError, TypeError):
+        raise VlaprobeError(
+            f"cannot read the held-out test episodes from {path}; pass the folder written by vlaprobe train, "
+            "or --all-episodes"
+        ) from None
+    chosen = [k for k in test if k in set(keys)]
+    if not chosen:
+        raise VlaprobeError(
+            f"none of the probes' test episodes is in store {cfg.store}; pass the store the probes were "
+            "trained on, or --all-episodes"
+        )
+    refit = str(probes_meta.get("trained_on", {}).get("split", "")).startswith("all")
+    return chosen, not refit
+
+
+def _ratio(a: float, b: float) -> float | None:
+    return None if b == 0 else a / b
+
+
+def monitor(cfg: MonitorConfig) -> MonitorResult:
+    """Run the cognition over the episodes on truth and on predictions; write ``monitor.json``."""
+    from vlaprobe.collection.store import ActivationStore
+
+    store = ActivationStore.open(cfg.store)
+    readout = ProbeReadout.load(cfg.probes, model_id=store.model_id)
+    for h in HEADS:
+        if list(readout.atoms[h]) != list(store.atom_names.get(h, [])):
+            raise VlaprobeError(
+                f"the probes' {h} atoms differ from store {cfg.store}'s; pass the store the probes were trained on"
+            )
+    keys, held_out = _episodes(cfg, store, readout.meta)
+    ccfg = cfg.cognition()
+    cogs: dict[tuple[str, str], tuple[Cognition, Cognition]] = {}
+    truth_v: Counter[str] = Counter()
+    probe_v: Counter[str] = Counter()
+    steps = agree_sub = 0
+    agree_beliefs = belief_pairs = raw_flips = belief_flips = flip_steps = 0
+    goals: list[tuple[int | None, int | None]] = []
+    per_episode: list[EpisodeFigures] = []
+    mask = np.concatenate([readout.probed[h] for h in HEADS])
+    for key in keys:
+        try:
+            goal = Goal(**store.episode(key).attrs["goal"])
+        except (KeyError, TypeError):
+            raise VlaprobeError(
+                f"episode {key} of store {cfg.store} records no task goal; collect it again with this vlaprobe"
+            ) from None
+        names = (goal.pick, goal.place)
+        if names not in cogs:
+            cogs[names] = (
+                Cognition(store.atom_names["object"], store.atom_names["action"], goal, ccfg),
+                Cognition(
+                    store.atom_names["object"], store.atom_names["action"], goal, ccfg, probed=readout.probed
+                ),
+            )
+        cog_truth, cog_probes = cogs[names]
+        obj, act = store.labels("object", [key]), store.labels("action", [key])
+        truth = _run(cog_truth, obj, act)
+        rows = {h: store.layer(readout.layers[h], [key]) for h in HEADS}
+        pred = readout.assign_steps(rows)
+        run = _run(cog_probes, pred.values["object"], pred.values["action"])
+        n = len(obj)
+        steps += n
+        tv, pv = truth.new_violations(), run.new_violations()
+        truth_v += tv
+        probe_v += pv
+        same = truth.active() == run.active()
+        agree_sub += int(same.sum())
+        agree_beliefs += int((truth.beliefs[:, mask] == run.beliefs[:, mask]).sum())
+        belief_pairs += n * int(mask.sum())
+        raw = np.concatenate([pred.values["object"], pred.values["action"]], axis=1)[:, mask]
+        raw_flips += int((raw[1:] != raw[:-1]).sum())
+        belief_flips += int((run.beliefs[1:, mask] != run.beliefs[:-1, mask]).sum())
+        flip_steps += n - 1
+        goals.append((truth.goal_step, run.goal_step))
+        per_episode.append(
+            EpisodeFigures(
+                key, n, truth.goal_step, run.goal_step, sum(tv.values()), sum(pv.values()), float(same.mean())
+            )
+        )
+    rules = sorted(next(iter(cogs.values()))[0].rules.messages) if cogs else []
+    both = [(a, b) for a, b in goals if a is not None and b is not None]
+    detection = GoalDetection(
+        precision=_ratio(len(both), sum(b is not None for _, b in goals)),
+        recall=_ratio(len(both), sum(a is not None for a, _ in goals)),
+        mean_delay_steps=float(np.mean([b - a for a, b in both])) if both else None,
+    )
+    per100 = 100.0 / max(steps, 1)
+    result = MonitorResult(
+        episodes=len(keys),
+        steps=steps,
+        truth=ViolationFigures(sum(truth_v.values()) * per100, {r: truth_v.get(r, 0) for r in rules}),
+        probes=ProbeFigures(
+            sum(probe_v.values()) * per100,
+            {r: probe_v.get(r, 0) for r in rules},
+            goal_detection=detection,
+            subgoal_accuracy=agree_sub / max(steps, 1),
+            belief_agreement=agree_beliefs / max(belief_pairs, 1),
+            flips_per_step=raw_flips / max(flip_steps, 1),
+            flips_per_step_debounced=belief_flips / max(flip_steps, 1),
+        ),
+        held_out=held_out,
+        layers=dict(readout.layers),
+        debounce=ccfg.debounce,
+        rules=[str(p) for p in next(iter(cogs.values()))[0].rules.files] if cogs else [],
+        per_episode=per_episode,
+    )
+    out = Path(cfg.out) if cfg.out is not None else Path(cfg.probes)
+    write_atomic(out / MONITOR_FILE, json.dumps(result.to_json(), indent=1) + "\n")
+    return result
+
+
+SECTION_ID, SECTION_TITLE, SECTION_TEMPLATE = (
+    "cognition",
+    "Cognition: beliefs, rules and subgoals",
+    "monitor_section.html",
+)
+
+
+def render_section(result: MonitorResult | dict[str, Any]) -> str:
+    """The report's cognition section as a self-contained HTML fragment (``templates/monitor_section.html``)."""
+    import jinja2
+
+    data = result.to_json() if isinstance(result, MonitorResult) else result
+    env = jinja2.Environment(
+        loader=jinja2.PackageLoader("vlaprobe.cognition", "templates"),
+        autoescape=jinja2.select_autoescape(["html"]),
+        undefined=jinja2.StrictUndefined,
+    )
+    body = env.get_template(SECTION_TEMPLATE).render(data=data)
+    return f'<section id="{SECTION_ID}"><h2>{SECTION_TITLE}</h2>\n{body}</section>\n'
+
+
+def report_section(probes: Path) -> Any:
+    """Section provider for the report (``vlaprobe.reports.sections``): the monitor's figures when
+    ``monitor.json`` is in the probe folder, else None."""
+    path = Path(probes) / MONITOR_FILE
+    if not path.is_file():
+        return None
+    from vlaprobe.reports.sections import Section
+
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        raise VlaprobeError(f"cannot read {path}; run vlaprobe monitor again") from None
+    return Section(id=SECTION_ID, title=SECTION_TITLE, template=SECTION_TEMPLATE, data=data)
+
+
+def main(cfg: MonitorConfig) -> int:
+    """CLI entry: run :func:`monitor`, print the summary (JSON with --json), return the exit status."""
+    result = monitor(cfg)
+    if cfg.json:
+        print(json.dumps(result.summary()))
+        return 0
+    t, p = result.truth, result.probes
+    where = "held-out test" if result.held_out else "stored"
+    print(f"{result.episodes} {where} episodes, {result.steps} steps, debounce {result.debounce}")
+    print(
+        f"violations per 100 steps: truth {t.violations_per_100_steps:.2f}, probes {p.violations_per_100_steps:.2f}"
+    )
+    for rule in t.violations:
+        print(f"  {rule:24s} truth {t.violations[rule]:6d}  probes {p.violations[rule]:6d}")
+    g = p.goal_detection
+    print(
+        f"goal detection: precision {g.precision}, recall {g.recall}, mean delay {g.mean_delay_steps} steps"
+    )
+    print(
+        f"subgoal accuracy {p.subgoal_accuracy:.3f}, belief agreement {p.belief_agreement:.3f}, flips per step "
+        f"{p.flips_per_step:.2f} raw / {p.flips_per_step_debounced:.2f} debounced"
+    )
+    return 0

@@ -1,0 +1,165 @@
+"""Probes + hidden states -> a full assignment of every atom, the same for `vlaprobe monitor` and the live server.
+
+The probes only cover the atoms that were not near-constant in training (the kept atoms); the others are
+held at their training-majority value (train frequency >= 0.5, from the probes' metadata) and marked not
+probed, with probability NaN. Each head is read at one layer (default: its best). The weights are pulled out of
+torch into numpy once, so a step costs two matrix-vector products and no torch call; a stored episode is
+read row by row with the very same operations as a live step, so both give identical predictions.
+
+    readout = ProbeReadout.load("runs/default/probes")
+    a = readout.assign(hidden)          # (hidden states, hidden) of one step -> Assignment
+    a.values["object"], a.probs["object"], a.probed["object"]
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from vlaprobe.errors import VlaprobeError
+
+if TYPE_CHECKING:
+    from vlaprobe.probes.probeset import ProbeSet
+
+HEADS = ("object", "action")
+
+
+@dataclass(frozen=True)
+class Assignment:
+    """Truth values of every atom of each head, in vocabulary order (one step, or T steps on a leading axis)."""
+
+    atoms: Mapping[str, tuple[str, ...]]
+    """Per head, every atom in vocabulary order."""
+    values: Mapping[str, np.ndarray]
+    """Per head, bool: the probe's prediction, or the training-majority value where not probed."""
+    probs: Mapping[str, np.ndarray]
+    """Per head, float32 probability of being true; NaN where not probed."""
+    probed: Mapping[str, np.ndarray]
+    """Per head, bool: whether a probe predicts the atom."""
+
+
+@dataclass(frozen=True)
+class _Head:
+    atoms: tuple[str, ...]
+    layer: int
+    kept: np.ndarray  # positions of the probe's outputs among ``atoms``
+    weight: np.ndarray  # (hidden, kept) float32
+    bias: np.ndarray  # (kept,)
+    mean: np.ndarray | None
+    std: np.ndarray | None
+    majority: np.ndarray  # (atoms,) bool
+    probed: np.ndarray  # (atoms,) bool
+
+
+class ProbeReadout:
+    """The probes of each head at one layer, as numpy arrays, turning hidden states into an Assignment."""
+
+    def __init__(self, probes: ProbeSet, layers: Mapping[str, int] | None = None) -> None:
+        layers = dict(layers or {})
+        missing = [h for h in HEADS if h not in probes.heads]
+        if missing:
+            raise VlaprobeError(
+                f"the probes in {probes.meta.get('path', 'this folder')} have no {missing[0]!r} head; the cognition "
+                "needs both heads: train with --heads object action"
+            )
+        self.meta = probes.meta
+        """The probes' metadata (probes.json)."""
+        self.threshold = probes.threshold
+        self.pooling = probes.pooling
+        self.model_id = probes.model_id
+        self.num_hidden_states = int(probes.meta["num_hidden_states"])
+        self.hidden_size = int(probes.meta["hidden_size"])
+        self._heads = {h: self._pull(probes, h, layers.get(h)) for h in HEADS}
+        self.layers: dict[str, int] = {h: self._heads[h].layer for h in HEADS}
+        """Hidden-state index each head reads."""
+        self.atoms: dict[str, tuple[str, ...]] = {h: self._heads[h].atoms for h in HEADS}
+        self.probed: dict[str, np.ndarray] = {h: self._heads[h].probed for h in HEADS}
+
+    @classmethod
+    def load(
+        cls, folder: str | Path, layers: Mapping[str, int] | None = None, model_id: str | None = None
+    ) -> ProbeReadout:
+        """Read a probe folder (see :class:`vlaprobe.probes.probeset.ProbeSet`) and pull out its weights."""
+        from vlaprobe.probes.probeset import ProbeSet
+
+        return cls(ProbeSet.load(folder, model_id=model_id), layers)
+
+    @staticmethod
+    def _pull(probes: ProbeSet, head: str, layer: int | None) -> _Head:
+        info = probes.meta["heads"][head]
+        atoms = tuple(info.get("atom_names") or probes.atoms(head))
+        layer = probes.best_layer(head) if layer is None else int(layer)
+        if layer not in probes.layers:
+            raise VlaprobeError(
+                f"no {head} probe for hidden state {layer}; these probes cover {probes.layers}"
+            )
+        i = probes.layers.index(layer)
+        position = {a: j for j, a in enumerate(atoms)}
+        kept = np.array([position[a] for a in probes.atoms(head)], dtype=np.int64)
+        majority = np.zeros(len(atoms), dtype=bool)
+        for d in info.get("dropped", []):
+            if d["atom"] in position:
+                majority[position[d["atom"]]] = float(d["train_frequency"]) >= 0.5
+        probed = np.zeros(len(atoms), dtype=bool)
+        probed[kept] = True
+        tensors = probes.tensors
+
+        def pull(name: str) -> np.ndarray | None:
+            x = tensors.get(f"{head}.{name}")
+            return None if x is None else np.ascontiguousarray(x[i].detach().cpu().numpy(), dtype=np.float32)
+
+        weight, bias = pull("weight"), pull("bias")
+        if weight is None or bias is None:
+            raise VlaprobeError(f"the {head} probes have no weights or biases; run vlaprobe train again")
+        return _Head(atoms, layer, kept, weight, bias, pull("mean"), pull("std"), majority, probed)
+
+    def _probs(self, head: _Head, x: np.ndarray) -> np.ndarray:
+        """Probabilities of the kept atoms from one hidden state (hidden,) or (7, hidden) at the head's layer."""
+        x = np.asarray(x, dtype=np.float32)
+        if x.ndim == 2:  # "action_tokens" pooling: mean over the 7 positions, as in training
+            x = x.mean(axis=0)
+        if head.mean is not None and head.std is not None:
+            x = (x - head.mean) / head.std
+        z = x @ head.weight + head.bias
+        return (0.5 + 0.5 * np.tanh(0.5 * z)).astype(np.float32)  # the logistic function, without overflow
+
+    def _fill(self, head: _Head, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        values = head.majority.copy()
+        values[head.kept] = p > self.threshold
+        probs = np.full(len(head.atoms), np.nan, dtype=np.float32)
+        probs[head.kept] = p
+        return values, probs
+
+    def assign(self, hidden: np.ndarray) -> Assignment:
+        """One step: ``hidden`` holds every hidden state of the step, (L, hidden) or (L, 7, hidden)."""
+        x = np.asarray(hidden)
+        expected = 3 if self.pooling == "action_tokens" else 2
+        if x.ndim != expected or x.shape[0] != self.num_hidden_states or x.shape[-1] != self.hidden_size:
+            raise VlaprobeError(
+                f"hidden states of shape {x.shape} do not fit these probes ({self.num_hidden_states} hidden "
+                f"states of size {self.hidden_size}, pooling {self.pooling}); pass every hidden state of one step"
+            )
+        values, probs = {}, {}
+        for name, head in self._heads.items():
+            values[name], probs[name] = self._fill(head, self._probs(head, x[head.layer]))
+        return Assignment(self.atoms, values, probs, self.probed)
+
+    def assign_steps(self, rows: Mapping[str, np.ndarray]) -> Assignment:
+        """T steps at once from each head's layer, ``rows[head]`` (T, hidden) (as ``ActivationStore.layer``
+        reads them); arrays of the result get a leading T axis. Row for row the same operations as :meth:`assign`."""
+        values, probs = {}, {}
+        for name, head in self._heads.items():
+            x = np.asarray(rows[name])
+            if x.shape[-1] != self.hidden_size:
+                raise VlaprobeError(
+                    f"rows of {name} have hidden size {x.shape[-1]}, the probes {self.hidden_size}"
+                )
+            out = [self._fill(head, self._probs(head, r)) for r in x]
+            n = len(head.atoms)
+            values[name] = np.array([v for v, _ in out], dtype=bool).reshape(len(x), n)
+            probs[name] = np.array([p for _, p in out], dtype=np.float32).reshape(len(x), n)
+        return Assignment(self.atoms, values, probs, self.probed)

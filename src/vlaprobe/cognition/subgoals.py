@@ -1,0 +1,171 @@
+"""Goal and subgoals of a pick-and-place task, tracked over the beliefs of each step.
+
+From the task's goal ``On(X, Y)`` alone (nothing written per task), four subgoals in order:
+
+1. ``should-move-towards(X)``: done once that directive has been believed and has ended, or X is grasped;
+2. ``grasped(X)``: done while X is grasped (or placed);
+3. ``should-move-towards(Y)``: done once that directive has ended while X is still grasped, or X is on Y;
+4. ``on(X,Y)``: the goal; done while it holds.
+
+X let go while ``should-move-towards(Y)`` still holds is still on its way (settling on Y, or falling).
+The *level* is the number of subgoals done; they are done in order, so a step may complete several. When the
+beliefs have supported a lower level for ``regression_steps`` consecutive steps, the subgoals in between are
+*regressed* (undone; to be done again) and a ``regression`` event is raised, with "dropped" when X was grasped
+and is now neither grasped nor on Y. The wait is needed because a placing hand lets go above the place: the
+scripted expert opens the gripper 2-3 steps before X rests on Y. With no new subgoal done for ``stall_steps``
+steps before the goal, one ``stalled`` event (again after progress).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from vlaprobe.errors import VlaprobeError
+from vlaprobe.symbols.vocabulary import atom
+from vlaprobe.symbols.world import Goal
+
+Status = Literal["pending", "active", "done", "regressed"]
+EventKind = Literal["subgoal_done", "goal_reached", "regression", "dropped", "stalled"]
+
+
+@dataclass(frozen=True)
+class SubgoalState:
+    """One subgoal's status at one step."""
+
+    index: int
+    """1..4, in the order the subgoals must be done."""
+    name: str
+    """The belief that marks it, e.g. ``"should-move-towards(akita_black_bowl_1)"``."""
+    status: Status
+    """``done``; ``active`` (the next to do); ``regressed`` (was done, undone since); ``pending``."""
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something that happened to the task's progress at one step."""
+
+    kind: EventKind
+    t: int
+    """Step at which it happened (the step whose beliefs show it)."""
+    message: str
+    """One line for people."""
+
+
+class SubgoalTracker:
+    """Level of a pick-and-place task's subgoals from the beliefs of each step."""
+
+    def __init__(
+        self, index: Mapping[str, int], goal: Goal, stall_steps: int = 150, regression_steps: int = 8
+    ) -> None:
+        x, y = goal.pick, goal.place
+        self.names = (
+            atom("should-move-towards", x),
+            atom("grasped", x),
+            atom("should-move-towards", y),
+            atom("on", x, y),
+        )
+        missing = [n for n in self.names if n not in index]
+        if missing:
+            raise VlaprobeError(
+                f"the goal {atom('on', x, y)} needs the atom {missing[0]!r}, which is not among the atoms "
+                "given; pass the task's full object and action atoms"
+            )
+        if stall_steps < 1 or regression_steps < 1:
+            raise VlaprobeError(
+                f"stall_steps and regression_steps must be at least 1, got {stall_steps} and {regression_steps}"
+            )
+        self.goal = goal
+        self.stall_steps = int(stall_steps)
+        self.regression_steps = int(regression_steps)
+        self._i = tuple(index[n] for n in self.names)
+        self.reset()
+
+    def reset(self) -> None:
+        self.level = 0
+        self._regressed = [False] * 4
+        self._seen_towards = [False, False]  # directive believed since its subgoal became the next to do
+        self._last_progress = 0
+        self._below = 0  # consecutive steps the beliefs have supported less than the level
+        self._stalled = False
+        self._states: tuple[SubgoalState, ...] | None = None
+
+    def _support(self, b: np.ndarray) -> int:
+        """Highest level the current beliefs (and the directives seen) support."""
+        towards_x, grasped, towards_y, on = (bool(b[i]) for i in self._i)
+        if on:
+            return 4
+        if grasped:
+            if self.level >= 2 and towards_y:
+                self._seen_towards[1] = True
+            return 3 if self._seen_towards[1] and not towards_y else 2
+        if towards_y and self.level >= 2:
+            return self.level  # let go, still on its way to Y (settling on it, or falling)
+        self._seen_towards[1] = False
+        if towards_x:
+            self._seen_towards[0] = True
+        return 1 if self._seen_towards[0] and not towards_x else 0
+
+    def update(self, t: int, beliefs: np.ndarray) -> list[Event]:
+        """Advance to step ``t``; the events of this step, in order."""
+        old, new = self.level, self._support(beliefs)
+        self._below = self._below + 1 if new < old else 0
+        if new < old and self._below < self.regression_steps:
+            new = old  # not (yet) a regression: wait whether it lasts
+        events: list[Event] = []
+        x, y = self.goal.pick, self.goal.place
+        if new > old:
+            for k in range(old, new):
+                self._regressed[k] = False
+                events.append(Event("subgoal_done", t, f"subgoal {k + 1} done: {self.names[k]}"))
+            if new == 4:
+                events.append(Event("goal_reached", t, f"goal reached: {self.names[3]}"))
+            self._last_progress, self._stalled = t, False
+        elif new < old:
+            self._below = 0
+            for k in range(new, old):
+                self._regressed[k] = True
+            undone = ", ".join(self.names[new:old])
+            events.append(Event("regression", t, f"regression: {undone} no longer done"))
+            if old in (2, 3) and new < 2:
+                events.append(
+                    Event("dropped", t, f"dropped: {x} was grasped, is now neither grasped nor on {y}")
+                )
+            if new == 0:
+                self._seen_towards[0] = False
+            self._last_progress, self._stalled = t, False
+        elif new < 4 and not self._stalled and t - self._last_progress >= self.stall_steps:
+            self._stalled = True
+            events.append(
+                Event("stalled", t, f"stalled: no subgoal done for {t - self._last_progress} steps")
+            )
+        if new != old:
+            self._states = None
+        self.level = new
+        return events
+
+    @property
+    def active(self) -> int:
+        """Index (1..4) of the next subgoal to do; 5 once all are done."""
+        return self.level + 1
+
+    @property
+    def progress(self) -> float:
+        return self.level / 4
+
+    def states(self) -> tuple[SubgoalState, ...]:
+        if self._states is None:
+            out = []
+            for k, name in enumerate(self.names):
+                if k < self.level:
+                    status: Status = "done"
+                elif self._regressed[k]:
+                    status = "regressed"
+                else:
+                    status = "active" if k == self.level else "pending"
+                out.append(SubgoalState(k + 1, name, status))
+            self._states = tuple(out)
+        return self._states

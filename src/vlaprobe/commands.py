@@ -1,0 +1,51 @@
+"""The ``vlaprobe`` subcommands: one line each, a config class and the function that runs it.
+
+Both are named as ``"module:attribute"`` and imported only when the command runs (or its help is shown), so
+adding a command is one entry here and importing this module stays cheap.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Command:
+    """One ``vlaprobe`` subcommand."""
+
+    config: str
+    """"module:Class" of the config dataclass (its fields are the command's flags)."""
+    target: str
+    """"module:function" that takes the config instance and returns the exit status."""
+    help: str
+    """One line for ``vlaprobe --help``."""
+
+    def config_class(self) -> type:
+        return _resolve(self.config)
+
+    def function(self) -> Callable[[Any], Any]:
+        return _resolve(self.target)
+
+
+def _resolve(spec: str) -> Any:
+    module, name = spec.split(":")
+    return getattr(importlib.import_module(module), name)
+
+
+COMMANDS: dict[str, Command] = {
+    "run": Command("vlaprobe.configs.run:RunConfig", "vlaprobe.pipeline:main", "The whole experiment: collect, train, report (CPU default)."),
+    "tasks": Command("vlaprobe.configs.suite:TasksConfig", "vlaprobe.envs.suite:tasks", "List the suite's tasks (index, instruction)."),
+    "atoms": Command("vlaprobe.configs.suite:AtomsConfig", "vlaprobe.envs.suite:atoms", "Print the atoms true at a settled init state."),
+    "collect": Command("vlaprobe.configs.collect:CollectConfig", "vlaprobe.collection.collect:collect", "Run episodes and record every layer's hidden states with the atoms of each step."),
+    "info": Command("vlaprobe.configs.collect:InfoConfig", "vlaprobe.collection.info:info", "Summarize an activation store."),
+    "train": Command("vlaprobe.configs.train:TrainConfig", "vlaprobe.probes.train:main", "Train and evaluate per-layer linear probes."),
+    "report": Command("vlaprobe.configs.report:ReportConfig", "vlaprobe.reports.report:main", "Write the heatmap, curves and HTML page."),
+    "monitor": Command("vlaprobe.configs.monitor:MonitorConfig", "vlaprobe.cognition.monitor:main", "Run the cognition (beliefs, rules, subgoals) on stored episodes: truth vs probe predictions."),
+    "model-info": Command("vlaprobe.configs.policy:ModelInfoConfig", "vlaprobe.policies.openvla.commands:model_info", "Load a VLA policy and print its description (with --step: one timed step) as JSON."),
+    "serve": Command("vlaprobe.configs.serve:ServeConfig", "vlaprobe.live.serve:main", "Live monitor: stream episodes (simulator, model, probes, cognition) over a WebSocket; record and replay."),
+    "save-tiny": Command("vlaprobe.configs.policy:SaveTinyConfig", "vlaprobe.policies.openvla.commands:save_tiny", "Write the seeded tiny OpenVLA as a checkpoint folder (config.json + model.safetensors)."),
+}  # fmt: skip
+"""Every subcommand by name, in ``vlaprobe --help`` order."""

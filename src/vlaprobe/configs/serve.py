@@ -1,0 +1,58 @@
+"""Config of ``vlaprobe serve``: the live monitor's WebSocket server."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from vlaprobe.configs.env import EnvConfig
+from vlaprobe.configs.monitor import CognitionConfig
+
+
+@dataclass
+class ServeConfig:
+    """Run LIBERO, the VLA, the probes and the cognition step by step and stream them to WebSocket clients."""
+
+    probes: Path = Path("runs/default/probes")
+    """Probe folder written by ``vlaprobe train`` (or ``vlaprobe run``)."""
+    model: str = "tiny"
+    """The observed model: "tiny" or an OpenVLA checkpoint folder; must be the one the probes were trained on."""
+    device: str = "auto"
+    """Torch device of the model: "auto", "cpu", "cuda" or "cuda:N"."""
+    store: Path | None = None
+    """An activation store (``vlaprobe collect``) whose episodes are listed and replayed without the simulator."""
+    host: str = "127.0.0.1"
+    """Address to bind. Any address other than loopback requires a token."""
+    port: int = 6006
+    """TCP port (the paper's UI connects to 6006)."""
+    token: str | None = None
+    """Secret that WebSocket connects (``?token=``) and REST calls (``Authorization: Bearer``) must present.
+    Default: $VLAPROBE_TOKEN. Required off loopback; optional on it."""
+    origins: tuple[str, ...] = ()
+    """Browser Origins allowed besides the server's own address and localhost (e.g. "https://lab.example")."""
+    image_hz: float = 10.0
+    """Most images per second sent to one client; intermediate frames are dropped, step states never."""
+    replay_hz: float = 10.0
+    """Steps per second when a client replays a stored episode."""
+    recordings: Path | None = None
+    """Folder of recorded live episodes (one folder per episode). Default: ``live`` beside the probe folder."""
+    driver: Literal["expert", "policy"] = "expert"
+    """Driver of episodes started without one (the paper's client): the scripted expert or the VLA itself."""
+    object_layer: int | None = None
+    """Hidden state the object probe reads; default: its best layer."""
+    action_layer: int | None = None
+    """Hidden state the action probe reads; default: its best layer."""
+    post_success_steps: int = 10
+    """Steps an episode goes on after success (the expert releases the object and lifts the arm), as in
+    collection: the goal must hold for the cognition's debounce steps before it counts as reached."""
+    max_message_bytes: int = 65536
+    """Largest client frame accepted; a larger one closes that connection (1009)."""
+    threads: int = 0
+    """Torch threads; 0: one per two cores (the simulator needs the rest)."""
+    seed: int = 0
+    """Seed of random init states and of the tiny model's weights."""
+    cognition: CognitionConfig = field(default_factory=CognitionConfig)
+    """The belief store, rules (``--cognition.rules FILE`` adds yours) and subgoal tracking, as in monitor."""
+    env: EnvConfig = field(default_factory=EnvConfig)
+    """The simulator (assets, image size, settle steps, ``max_steps`` = the default step budget)."""

@@ -1,0 +1,274 @@
+"""From one step record to one ``step`` message: probes, flips, the cognition on predictions and on truth.
+
+The same :class:`StepBuilder` serves live episodes, replays of stored episodes and the REST view of a store
+episode, so a replay shows exactly what the live server would have shown for the same hidden states.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from vlaprobe.live import protocol as P
+
+HEADS = ("object", "action")
+
+
+@dataclass
+class Reading:
+    """One head's probe output over the episode's atoms (every atom, in vocabulary order)."""
+
+    values: np.ndarray
+    """(atoms,) bool."""
+    probs: np.ndarray
+    """(atoms,) float; NaN for an atom that is not probed."""
+    probed: np.ndarray
+    """(atoms,) bool."""
+
+
+class Readout(Protocol):
+    """Hidden states of one step -> a :class:`Reading` per head."""
+
+    layers: dict[str, int]
+    threshold: float
+
+    def read(self, hidden: np.ndarray) -> dict[str, Reading]: ...
+
+
+class CognitionStepLike(Protocol):
+    asserted: Sequence[str]
+    retracted: Sequence[str]
+    violations: Sequence[Any]
+    subgoals: Sequence[Any]
+    progress: float
+    events: Sequence[Any]
+    goal_reached: bool
+
+
+class CognitionLike(Protocol):
+    def step(self, object_values: np.ndarray, action_values: np.ndarray) -> CognitionStepLike: ...
+
+
+class StepRecordLike(Protocol):
+    """What the builder reads from a step record (the step loop's ``StepRecord`` or a stored step)."""
+
+    t: int
+    hidden: np.ndarray
+    object_atoms: np.ndarray | None
+    action_atoms: np.ndarray | None
+    action: np.ndarray | None
+    predicted_action: np.ndarray | None
+    success: bool
+    terminal: bool
+
+
+MakeCognition = Callable[[dict[str, list[str]], Any, dict[str, np.ndarray] | None], CognitionLike]
+"""(atoms per head, goal, probed per head or None for truth) -> a fresh cognition for one episode."""
+
+
+@dataclass
+class EpisodeSpec:
+    """What an episode is, known before its first step."""
+
+    task: int
+    instruction: str
+    init: int
+    driver: str
+    max_steps: int
+    source: str
+    """"live" or "store"."""
+    goal: Any
+    """:class:`vlaprobe.symbols.Goal` of the task."""
+    atoms: dict[str, list[str]]
+    """Atom names per head, in vocabulary order."""
+    key: str = ""
+    """Store episode key (store source only)."""
+
+
+def _ms(timings: Any, name: str) -> float:
+    return float(getattr(timings, name, 0.0) or 0.0) if timings is not None else 0.0
+
+
+def _floats(a: np.ndarray | None) -> list[float] | None:
+    if a is None:
+        return None
+    a = np.asarray(a, dtype=np.float64).reshape(-1)
+    return None if not np.isfinite(a).all() else [round(float(x), 5) for x in a]
+
+
+def _violations(items: Sequence[Any]) -> list[P.Violation]:
+    return [
+        P.Violation(
+            rule=str(v.rule), message=str(v.message), atoms=[str(a) for a in v.atoms], since=int(v.since)
+        )
+        for v in items
+    ]
+
+
+def _events(items: Sequence[Any]) -> list[P.Event]:
+    return [P.Event(kind=e.kind, t=int(e.t), message=str(e.message)) for e in items]
+
+
+def status_line(t: int, success_step: int | None, last: bool) -> str:
+    """The paper's status strings (``last``: the final step of the budget)."""
+    if success_step is not None:
+        return f"Task completed successfully in {success_step} steps!"
+    if last:
+        return f"Task reached max steps ({t + 1} steps) without completion"
+    return f"Executing step {t}"
+
+
+@dataclass
+class StepBuilder:
+    """Turns the records of one episode into protocol messages and keeps the episode's summary."""
+
+    spec: EpisodeSpec
+    episode_id: str
+    readout: Readout
+    make_cognition: MakeCognition
+    _prev: dict[str, np.ndarray] = field(default_factory=dict)
+    _prev_truth: dict[str, np.ndarray] = field(default_factory=dict)
+    _violations: Counter[str] = field(default_factory=Counter)
+    _agree: list[int] = field(default_factory=lambda: [0, 0])
+    goal_step_predicted: int | None = None
+    goal_step_truth: int | None = None
+    steps: int = 0
+    success_step: int | None = None
+    """First step at which the task's own success check held."""
+
+    def __post_init__(self) -> None:
+        self._cog: CognitionLike | None = None
+        self._cog_truth: CognitionLike | None = None
+        self._probed: dict[str, np.ndarray] | None = None
+
+    def start_message(self) -> P.EpisodeStart:
+        s = self.spec
+        probed = self._probed or {h: np.ones(len(s.atoms[h]), bool) for h in HEADS}
+        subgoals = getattr(self._cognition(probed), "subgoals", None) or []
+        return P.EpisodeStart(
+            episode_id=self.episode_id,
+            source="store" if s.source == "store" else "live",
+            task=s.task,
+            instruction=s.instruction,
+            init=s.init,
+            driver=s.driver,
+            max_steps=s.max_steps,
+            atoms=P.HeadNames(object=list(s.atoms["object"]), action=list(s.atoms["action"])),
+            probed=P.HeadFlags(**{h: [bool(x) for x in probed[h]] for h in HEADS}),
+            subgoals=[P.SubgoalInfo(index=int(g.index), name=str(g.name)) for g in subgoals],
+        )
+
+    def _cognition(self, probed: dict[str, np.ndarray]) -> CognitionLike:
+        if self._cog is None:
+            self._probed = probed
+            self._cog = self.make_cognition(self.spec.atoms, self.spec.goal, probed)
+        return self._cog
+
+    def step(self, rec: StepRecordLike, timings: Any = None) -> P.Step:
+        """The ``step`` message of one record (``image`` left empty: the hub attaches images)."""
+        t = int(rec.t)
+        t0 = time.perf_counter()
+        reading = self.readout.read(rec.hidden)
+        t1 = time.perf_counter()
+        values = {h: np.asarray(reading[h].values, bool) for h in HEADS}
+        cog = self._cognition({h: np.asarray(reading[h].probed, bool) for h in HEADS})
+        c = cog.step(values["object"], values["action"])
+        t2 = time.perf_counter()
+        truth, truth_events = None, []
+        if rec.object_atoms is not None and rec.action_atoms is not None:
+            truth = {
+                "object": np.asarray(rec.object_atoms, bool),
+                "action": np.asarray(rec.action_atoms, bool),
+            }
+            if self._cog_truth is None:
+                self._cog_truth = self.make_cognition(self.spec.atoms, self.spec.goal, None)
+            ct = self._cog_truth.step(truth["object"], truth["action"])
+            truth_events = _events(ct.events)
+            if ct.goal_reached and self.goal_step_truth is None:
+                self.goal_step_truth = t
+            for h in HEADS:
+                probed = np.asarray(reading[h].probed, bool)
+                self._agree[0] += int((values[h] == truth[h])[probed].sum())
+                self._agree[1] += int(probed.sum())
+        t3 = time.perf_counter()
+        if c.goal_reached and self.goal_step_predicted is None:
+            self.goal_step_predicted = t
+        for v in c.violations:
+            if int(v.since) == t:
+                self._violations[str(v.rule)] += 1
+        self.steps = t + 1
+        if rec.success and self.success_step is None:
+            self.success_step = t
+        msg = P.Step(
+            episode_id=self.episode_id,
+            t=t,
+            status=status_line(t, self.success_step, bool(rec.terminal) or t == self.spec.max_steps - 1),
+            step=t,
+            predicted=P.Prediction(
+                **{
+                    h: P.HeadPrediction(
+                        values=values[h].astype(int).tolist(),
+                        probs=[None if np.isnan(p) else round(float(p), 4) for p in reading[h].probs],
+                    )
+                    for h in HEADS
+                }
+            ),
+            truth=None if truth is None else P.HeadBits(**{h: truth[h].astype(int).tolist() for h in HEADS}),
+            flips=P.Flips(
+                predicted=self._flips(values, self._prev), truth=self._flips(truth, self._prev_truth)
+            ),
+            beliefs=P.BeliefDelta(asserted=list(c.asserted), retracted=list(c.retracted)),
+            violations=_violations(c.violations),
+            subgoals=[
+                P.SubgoalState(index=int(g.index), name=str(g.name), status=str(g.status)) for g in c.subgoals
+            ],
+            progress=float(c.progress),
+            events=_events(c.events),
+            truth_events=truth_events,
+            action=_floats(rec.action),
+            predicted_action=_floats(rec.predicted_action),
+            timings=P.Timings(
+                env_ms=_ms(timings, "env_ms"),
+                label_ms=_ms(timings, "label_ms"),
+                model_ms=_ms(timings, "model_ms"),
+                driver_ms=_ms(timings, "driver_ms"),
+                probes_ms=round((t1 - t0) * 1e3, 3),
+                cognition_ms=round((t2 - t1 + time.perf_counter() - t3) * 1e3, 3),
+                total_ms=round(_ms(timings, "total_ms") + (time.perf_counter() - t0) * 1e3, 3),
+            ),
+            ready_at=time.time(),
+        )
+        self._prev = values
+        if truth is not None:
+            self._prev_truth = truth
+        return msg
+
+    def _flips(self, now: dict[str, np.ndarray] | None, prev: dict[str, np.ndarray]) -> P.FlipSet:
+        on: list[str] = []
+        off: list[str] = []
+        if now is not None and prev:
+            for h in HEADS:
+                names = self.spec.atoms[h]
+                on += [names[i] for i in np.flatnonzero(now[h] & ~prev[h])]
+                off += [names[i] for i in np.flatnonzero(~now[h] & prev[h])]
+        return P.FlipSet(on=on, off=off)
+
+    def end_message(self, stopped: bool) -> P.EpisodeEnd:
+        agree, total = self._agree
+        return P.EpisodeEnd(
+            episode_id=self.episode_id,
+            success=self.success_step is not None,
+            steps=self.steps,
+            stopped=stopped,
+            summary=P.EpisodeSummary(
+                violations=dict(sorted(self._violations.items())),
+                goal_step_predicted=self.goal_step_predicted,
+                goal_step_truth=self.goal_step_truth,
+                agreement=round(agree / total, 4) if total else 1.0,
+            ),
+        )

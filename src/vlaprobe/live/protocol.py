@@ -1,0 +1,314 @@
+"""The live protocol: every message between `vlaprobe serve` and its clients, as pydantic models.
+
+Defined once here; :func:`schema` exports them as JSON Schema into ``protocol.schema.json`` beside this file
+(``python -m vlaprobe.live.protocol`` rewrites it; a test checks it is current), from which the web UI
+generates its TypeScript types. docs/live.md explains the flow of messages.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
+
+SCHEMA_FILE = Path(__file__).with_name("protocol.schema.json")
+Driver = Literal["expert", "policy"]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+# -- parts ----------------------------------------------------------------------------------------
+class TaskInfo(_Model):
+    index: int
+    instruction: str
+
+
+class HeadNames(_Model):
+    """Atom names per head, in the order every per-atom list of an episode uses."""
+
+    object: list[str]
+    action: list[str]
+
+
+class HeadFlags(_Model):
+    object: list[bool]
+    action: list[bool]
+
+
+class HeadBits(_Model):
+    object: list[int]
+    action: list[int]
+
+
+class HeadInts(_Model):
+    object: int
+    action: int
+
+
+class ProbeInfo(_Model):
+    layers: HeadInts
+    """Hidden-state index each head's probe reads."""
+    threshold: float
+    atoms: HeadNames
+    probed: HeadFlags
+    """False: the atom was dropped in training; it is held at its training-majority value and never flips."""
+
+
+class Running(_Model):
+    episode_id: str
+
+
+class SubgoalInfo(_Model):
+    index: int
+    name: str
+
+
+class SubgoalState(_Model):
+    index: int
+    name: str
+    status: Literal["pending", "active", "done", "regressed"]
+
+
+class HeadPrediction(_Model):
+    values: list[int]
+    """0/1 per atom."""
+    probs: list[float | None]
+    """Probe probability per atom; null for an atom that is not probed."""
+
+
+class Prediction(_Model):
+    object: HeadPrediction
+    action: HeadPrediction
+
+
+class FlipSet(_Model):
+    on: list[str]
+    off: list[str]
+
+
+class Flips(_Model):
+    predicted: FlipSet
+    truth: FlipSet
+
+
+class BeliefDelta(_Model):
+    asserted: list[str]
+    """DIARC terms newly believed at this step, e.g. ``left_of(akita_black_bowl_1,plate_1)``."""
+    retracted: list[str]
+
+
+class Violation(_Model):
+    rule: str
+    message: str
+    atoms: list[str]
+    since: int
+    """Step at which the violation began."""
+
+
+class Event(_Model):
+    kind: Literal["subgoal_done", "goal_reached", "regression", "dropped", "stalled"]
+    t: int
+    message: str
+
+
+class Timings(_Model):
+    """Milliseconds spent per phase of the step (0 where a source has no such phase, e.g. replay)."""
+
+    env_ms: float
+    model_ms: float
+    probes_ms: float
+    cognition_ms: float
+    total_ms: float
+    label_ms: float = 0.0
+    driver_ms: float = 0.0
+
+
+class EpisodeSummary(_Model):
+    violations: dict[str, int]
+    """Rule id -> number of violations that began during the episode (from the predictions)."""
+    goal_step_predicted: int | None
+    goal_step_truth: int | None
+    agreement: float
+    """Share of (step, probed atom) pairs where the prediction equals the truth (1.0 without truth)."""
+
+
+# -- server -> client -----------------------------------------------------------------------------
+class Hello(_Model):
+    type: Literal["hello"] = "hello"
+    version: str
+    tasks: list[TaskInfo]
+    model_id: str
+    probes: ProbeInfo
+    image_hz: float
+    num_init_states: int
+    drivers: list[Driver]
+    default_driver: Driver
+    running: Running | None
+
+
+class EpisodeStart(_Model):
+    type: Literal["episode_start"] = "episode_start"
+    episode_id: str
+    source: Literal["live", "recorded", "store"]
+    task: int
+    instruction: str
+    init: int
+    driver: str
+    max_steps: int
+    atoms: HeadNames
+    probed: HeadFlags
+    subgoals: list[SubgoalInfo]
+
+
+class Step(_Model):
+    type: Literal["step"] = "step"
+    episode_id: str
+    t: int
+    image: str | None = None
+    """Base64 JPEG of the upright 224x224 frame the model sees; null when dropped (slow client, --image-hz)."""
+    status: str
+    """The paper's client field: a status line."""
+    step: int
+    """The paper's client field: equals ``t``."""
+    predicted: Prediction
+    truth: HeadBits | None
+    """Ground-truth atoms from the detectors; null where the source has none."""
+    flips: Flips
+    beliefs: BeliefDelta
+    violations: list[Violation]
+    subgoals: list[SubgoalState]
+    progress: float
+    events: list[Event]
+    """Events of the cognition on the predictions."""
+    truth_events: list[Event] = Field(default_factory=list)
+    """Events of the same cognition on the ground-truth atoms (what really happened, e.g. a drop)."""
+    action: list[float] | None
+    """Executed action (7,); null on the terminal step."""
+    predicted_action: list[float] | None
+    timings: Timings
+    ready_at: float = 0.0
+    """Server wall clock (Unix seconds) when the message was ready to send: clients measure their lag."""
+
+
+class History(_Model):
+    """The episode so far, sent first to a client that joins mid-episode (steps without images)."""
+
+    type: Literal["history"] = "history"
+    episode_id: str
+    start: EpisodeStart
+    steps: list[Step]
+
+
+class EpisodeEnd(_Model):
+    type: Literal["episode_end"] = "episode_end"
+    episode_id: str
+    success: bool
+    steps: int
+    stopped: bool
+    summary: EpisodeSummary
+
+
+class ErrorMessage(_Model):
+    type: Literal["error"] = "error"
+    message: str
+
+
+# -- client -> server -----------------------------------------------------------------------------
+class StartCommand(_Model):
+    type: Literal["start"] = "start"
+    task: int | str
+    """Task index or its instruction (trimmed, any case)."""
+    init: int | Literal["random"] = "random"
+    driver: Driver = "expert"
+    max_steps: int | None = Field(default=None, ge=1, le=10_000)
+    """Step budget; null: the server's (--env.max-steps)."""
+
+
+class StopCommand(_Model):
+    type: Literal["stop"] = "stop"
+
+
+class PauseCommand(_Model):
+    type: Literal["pause"] = "pause"
+
+
+class ResumeCommand(_Model):
+    type: Literal["resume"] = "resume"
+
+
+class DropCommand(_Model):
+    type: Literal["drop"] = "drop"
+    steps: int | None = Field(default=None, ge=1, le=100)
+    """Steps with the gripper forced open; null: the loop's default."""
+
+
+class ReplayCommand(_Model):
+    """Stream a stored episode (an id from GET /api/episodes) through the probes and the cognition."""
+
+    type: Literal["replay"] = "replay"
+    episode_id: str
+    hz: float | None = Field(default=None, gt=0, le=1000)
+    """Steps per second; null: the server's --replay-hz."""
+
+
+# -- REST -----------------------------------------------------------------------------------------
+class EpisodeListItem(_Model):
+    id: str
+    source: Literal["live", "store"]
+    task: int
+    instruction: str
+    init: int
+    driver: str
+    steps: int
+    success: bool | None
+    """null: the episode is running, or the server stopped before it ended."""
+    created: str
+    """ISO 8601 UTC."""
+
+
+class EpisodeRecord(_Model):
+    """GET /api/episodes/{id}: every step's states (no images; GET .../frames/{t} has them)."""
+
+    start: EpisodeStart
+    steps: list[Step]
+    end: EpisodeEnd | None
+
+
+ServerMessage = Annotated[
+    Hello | EpisodeStart | Step | History | EpisodeEnd | ErrorMessage, Field(discriminator="type")
+]
+ClientMessage = Annotated[
+    StartCommand | StopCommand | PauseCommand | ResumeCommand | DropCommand | ReplayCommand,
+    Field(discriminator="type"),
+]
+CLIENT = TypeAdapter(ClientMessage)
+"""``CLIENT.validate_json(text)`` parses one client frame."""
+
+
+class Protocol(_Model):
+    """Every message of the live protocol."""
+
+    server: ServerMessage
+    client: ClientMessage
+    episodes: list[EpisodeListItem]
+    episode: EpisodeRecord
+
+
+def schema() -> dict:
+    """The JSON Schema of every message (what ``protocol.schema.json`` holds)."""
+    return Protocol.model_json_schema()
+
+
+def schema_text() -> str:
+    return json.dumps(schema(), indent=2, sort_keys=True) + "\n"
+
+
+if __name__ == "__main__":
+    from vlaprobe.files import write_atomic
+
+    write_atomic(SCHEMA_FILE, schema_text())
+    print(SCHEMA_FILE)

@@ -1,0 +1,235 @@
+"""`vlaprobe serve`: load the probes and the observed model, then serve the live monitor on uvicorn.
+
+:func:`build_engine` is the composition root: probes -> readout, the cognition per episode, the simulator
+with the model, an optional activation store for replays. Tests pass small fakes for the model and the
+simulator and keep everything else real.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+import socket
+from collections.abc import Callable
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from vlaprobe import __version__
+from vlaprobe.configs.serve import ServeConfig
+from vlaprobe.errors import VlaprobeError
+from vlaprobe.live import protocol as P
+from vlaprobe.live.app import Engine, Limits, create_app
+from vlaprobe.live.pipeline import HEADS, EpisodeSpec, Reading, StepBuilder
+from vlaprobe.live.replay import StoreReplays
+from vlaprobe.live.sources import Simulator, StoreEpisodes
+
+
+class ProbeReading:
+    """The probes' readout (``vlaprobe.cognition.readout``, shared with ``vlaprobe monitor``) as a Readout."""
+
+    def __init__(self, probes: Any, layers: dict[str, int] | None = None) -> None:
+        from vlaprobe.cognition.readout import ProbeReadout
+
+        self.readout = ProbeReadout(probes, layers=layers)
+        self.layers = {h: int(v) for h, v in self.readout.layers.items()}
+        self.threshold = float(probes.threshold)
+
+    def read(self, hidden: np.ndarray) -> dict[str, Reading]:
+        a = self.readout.assign(hidden)
+        return {h: Reading(values=a.values[h], probs=a.probs[h], probed=a.probed[h]) for h in HEADS}
+
+
+class DiarcCognition:
+    """A :class:`vlaprobe.cognition.Cognition` whose belief diffs are spelled as DIARC terms (``left_of(a,b)``)."""
+
+    def __init__(self, cognition: Any) -> None:
+        from vlaprobe.cognition import diarc_term
+
+        self.cognition, self._term = cognition, diarc_term
+        self.subgoals = list(cognition.subgoals.states())
+
+    def step(self, object_values: np.ndarray, action_values: np.ndarray) -> Any:
+        s = self.cognition.step(object_values, action_values)
+        term = self._term
+        return replace(s, asserted=tuple(map(term, s.asserted)), retracted=tuple(map(term, s.retracted)))
+
+
+def cognition_factory(config: Any = None) -> Callable[..., Any]:
+    """Per episode: a fresh :class:`vlaprobe.cognition.Cognition` over the episode's atoms and goal, built as
+    ``vlaprobe monitor`` builds it (predictions: with the probes' ``probed`` mask; truth: without)."""
+    from vlaprobe.cognition import Cognition
+
+    def make(atoms: dict[str, list[str]], goal: Any, probed: dict[str, np.ndarray] | None) -> DiarcCognition:
+        return DiarcCognition(Cognition(atoms["object"], atoms["action"], goal, config, probed=probed))
+
+    return make
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def resolve_token(cfg: ServeConfig) -> str | None:
+    token = cfg.token or os.environ.get("VLAPROBE_TOKEN") or None
+    if not _is_loopback(cfg.host) and not token:
+        raise VlaprobeError(
+            f"--host {cfg.host} is reachable from other machines: set a secret with --token or VLAPROBE_TOKEN "
+            "(or bind 127.0.0.1)"
+        )
+    return token
+
+
+def load_probes(cfg: ServeConfig) -> Any:
+    from vlaprobe.probes import ProbeSet
+
+    if cfg.probes.is_file():
+        raise VlaprobeError(f"--probes {cfg.probes} is a file, not a folder; pass the folder vlaprobe train wrote")
+    if not (cfg.probes / "probes.json").is_file():
+        raise VlaprobeError(
+            f"no probes in {cfg.probes}; run `vlaprobe run` first (or pass --probes DIR from vlaprobe train)"
+        )
+    return ProbeSet.load(cfg.probes)
+
+
+def build_engine(
+    cfg: ServeConfig,
+    probes: Any,
+    *,
+    policy: Any = None,
+    make_env: Callable[[int], Any] | None = None,
+    tasks: dict[int, str] | None = None,
+    num_init_states: int | None = None,
+    make_driver: Callable[..., Any] | None = None,
+) -> Engine:
+    """Everything the app serves. Without ``policy``/``make_env``/``tasks`` the real model and LIBERO are used."""
+    layers = {h: v for h, v in (("object", cfg.object_layer), ("action", cfg.action_layer)) if v is not None}
+    readout = ProbeReading(probes, layers or None)
+    make_cognition = cognition_factory(cfg.cognition)
+
+    def make_builder(spec: EpisodeSpec, episode_id: str) -> StepBuilder:
+        return StepBuilder(spec, episode_id, readout, make_cognition)
+
+    if policy is None:
+        import torch
+
+        from vlaprobe.collection.worker import default_threads
+        from vlaprobe.configs.policy import PolicyConfig
+        from vlaprobe.policies import make_policy
+
+        torch.set_num_threads(cfg.threads or default_threads(1))
+        policy = make_policy(
+            PolicyConfig(model=cfg.model, pooling=probes.pooling, device=cfg.device, seed=cfg.seed)
+        )
+    probes.check(model_id=policy.model_id, pooling=policy.pooling)
+    if make_env is None or tasks is None:
+        from vlaprobe.envs import make_env as make_task_env
+        from vlaprobe.envs.libero import _benchmark, suite_tasks
+
+        tasks = dict(suite_tasks(cfg.env.suite))
+        num_init_states = len(_benchmark(cfg.env.suite).get_task_init_states(0))  # no simulator needed
+
+        def make_env(task: int) -> Any:
+            return make_task_env(task, cfg.env)
+
+    extra = {} if make_driver is None else {"make_driver": make_driver}
+    sim = Simulator(
+        policy,
+        make_env,
+        tasks,
+        max_steps=cfg.env.max_steps,
+        post_success_steps=cfg.post_success_steps,
+        seed=cfg.seed,
+        **extra,
+    )
+    replays = None
+    if cfg.store is not None:
+        episodes = StoreEpisodes(cfg.store)
+        store_model = episodes.store.meta.get("model_id")
+        if store_model is not None:
+            probes.check(model_id=str(store_model))
+        for h in HEADS:
+            if episodes.atoms[h] != list(probes.meta["heads"][h]["atom_names"]):
+                raise VlaprobeError(
+                    f"the probes' {h} atoms differ from store {cfg.store}'s; pass the store the probes were "
+                    "trained on (--store) or its probes (--probes)"
+                )
+        replays = StoreReplays(episodes, make_builder)
+    atoms = {h: list(probes.meta["heads"][h]["atom_names"]) for h in HEADS}
+    kept = {h: set(probes.atoms(h)) for h in HEADS}
+    hello = P.Hello(
+        version=__version__,
+        tasks=[P.TaskInfo(index=i, instruction=s) for i, s in sorted(tasks.items())],
+        model_id=policy.model_id,
+        probes=P.ProbeInfo(
+            layers=P.HeadInts(**readout.layers),
+            threshold=readout.threshold,
+            atoms=P.HeadNames(**atoms),
+            probed=P.HeadFlags(**{h: [a in kept[h] for a in atoms[h]] for h in HEADS}),
+        ),
+        image_hz=cfg.image_hz,
+        num_init_states=int(num_init_states or 0),
+        drivers=["expert", "policy"],
+        default_driver=cfg.driver,
+        running=None,
+    )
+    recordings = cfg.recordings if cfg.recordings is not None else cfg.probes.parent / "live"
+    return Engine(
+        hello=hello, simulator=sim, make_builder=make_builder, recordings=recordings, replays=replays
+    )
+
+
+def limits_of(cfg: ServeConfig, token: str | None) -> Limits:
+    if cfg.image_hz <= 0 or cfg.replay_hz <= 0:
+        raise VlaprobeError("--image-hz and --replay-hz must be above 0")
+    return Limits(
+        token=token,
+        origins=tuple(cfg.origins),
+        max_message_bytes=cfg.max_message_bytes,
+        image_hz=cfg.image_hz,
+        replay_hz=cfg.replay_hz,
+        default_driver=cfg.driver,
+        seed=cfg.seed,
+    )
+
+
+def _listen(host: str, port: int) -> socket.socket:
+    """The server's listening socket (bound here, so a busy port is one clear line and --port 0 works)."""
+    sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        sock.close()
+        raise VlaprobeError(f"cannot listen on {host}:{port} ({exc.strerror}); pass another --port") from None
+    return sock
+
+
+def main(cfg: ServeConfig) -> int:
+    """Load everything, print the address, serve until interrupted."""
+    import uvicorn
+
+    token = resolve_token(cfg)
+    limits = limits_of(cfg, token)
+    probes = load_probes(cfg)
+    sock = _listen(cfg.host, cfg.port)  # before the model loads: a busy port fails at once
+    try:
+        app = create_app(build_engine(cfg, probes), limits)
+        port = sock.getsockname()[1]
+        shown = f"[{cfg.host}]" if ":" in cfg.host else cfg.host
+        query = "?token=<token>" if token else ""
+        print(
+            f"vlaprobe live monitor: http://{shown}:{port}/{query}  (WebSocket ws://{shown}:{port}/ws)",
+            flush=True,
+        )
+        config = uvicorn.Config(app, ws_max_size=cfg.max_message_bytes, log_level="warning")
+        uvicorn.Server(config).run(sockets=[sock])
+    finally:
+        sock.close()
+    return 0

@@ -1,0 +1,57 @@
+"""Build a policy from its config: the one place that knows the implementations behind ``VLAPolicy``.
+
+Every caller (the CLI, collection workers, the live server) goes through :func:`make_policy`; torch and the
+models are imported only when it is called.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from vlaprobe.configs.policy import PolicyConfig
+from vlaprobe.policies.base import Pooling, VLAPolicy
+
+
+def make_policy(cfg: PolicyConfig) -> VLAPolicy:
+    """The policy ``cfg`` describes.
+
+    ``cfg.model``: "tiny" for the embedded tiny OpenVLA built deterministically from ``cfg.seed`` (no file
+    needed), else a checkpoint folder: an official OpenVLA one (config.json, *.safetensors shards (+ index),
+    dataset_statistics.json or norm_stats in config.json, tokenizer.json) or one written by
+    ``OpenVLAPolicy.save_pretrained``. See :class:`~vlaprobe.configs.policy.PolicyConfig` for the rest.
+    """
+    from vlaprobe.policies.openvla.policy import OpenVLAPolicy
+
+    return OpenVLAPolicy.load(
+        cfg.model,
+        pooling=cfg.pooling,
+        device=cfg.device,
+        seed=cfg.seed,
+        unnorm_key=cfg.unnorm_key,
+        center_crop=cfg.center_crop,
+        preprocessing=cfg.preprocessing,
+    )
+
+
+def load_policy(
+    model: str,
+    pooling: Pooling = "last_prompt",
+    device: str = "auto",
+    seed: int = 0,
+    *,
+    unnorm_key: str = "libero_spatial",
+    center_crop: bool = True,
+    preprocessing: Literal["numpy", "tf"] = "numpy",
+) -> VLAPolicy:
+    """:func:`make_policy` with the config's fields as arguments (for scripts and notebooks)."""
+    return make_policy(
+        PolicyConfig(
+            model=model,
+            pooling=pooling,
+            device=device,
+            seed=seed,
+            unnorm_key=unnorm_key,
+            center_crop=center_crop,
+            preprocessing=preprocessing,
+        )
+    )

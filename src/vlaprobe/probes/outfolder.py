@@ -1,0 +1,96 @@
+"""The output folder of ``vlaprobe train`` as one unit: checked up front, locked, replaced whole.
+
+A probe folder's files (``probes.json``, ``probes.safetensors``, ``evaluation.json``, ``config.json``) are
+written into a fresh hidden sibling folder and swapped in with renames, so a kill at any moment leaves either
+the old folder or the new one, never a mix; leftovers of a killed run are removed by the next one. A folder
+holding anything else (an activation store, a run folder, a model) is refused before any work, and a lock
+file beside the folder keeps two trainings from writing it at once.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import shutil
+import uuid
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import check_output_folder
+
+PROBE_FILES = frozenset(
+    {"probes.json", "probes.safetensors", "evaluation.json", "config.json", "monitor.json"}
+)
+"""What a probe folder holds (``monitor.json`` is written there by ``vlaprobe monitor``)."""
+
+
+def check_probe_folder(out: Path, flag: str = "--out") -> None:
+    """Refuse (one line) an ``out`` that is a file, cannot be created, or holds more than a probe folder."""
+    check_output_folder(out, flag)
+    if out.is_dir():
+        foreign = sorted(p.name for p in out.iterdir() if p.name not in PROBE_FILES and not p.name.startswith("."))
+        if foreign:
+            shown = ", ".join(foreign[:4]) + (", ..." if len(foreign) > 4 else "")
+            raise VlaprobeError(
+                f"{flag} {out} holds other files than probes ({shown}); choose an empty folder or an earlier "
+                "probes folder (e.g. RUN/probes, not the run or store folder)"
+            )
+
+
+def _leftovers(out: Path) -> list[Path]:
+    return sorted(out.parent.glob(f".{out.name}.*.partial")) + sorted(out.parent.glob(f".{out.name}.*.old"))
+
+
+def clean_leftovers(out: Path) -> None:
+    """Remove what a killed run left beside ``out``; if it died between the two renames, put the old folder back."""
+    for path in _leftovers(out):
+        if path.suffix == ".old" and not out.exists():
+            os.rename(path, out)
+        else:
+            shutil.rmtree(path, ignore_errors=True)
+    if out.is_dir():
+        for tmp in out.glob(".*.tmp"):  # write_atomic's temporaries of an older, in-place writer
+            tmp.unlink(missing_ok=True)
+
+
+@contextmanager
+def locked(out: Path, flag: str = "--out") -> Iterator[None]:
+    """Hold an exclusive lock on ``out`` (a ``.<name>.lock`` file beside it) for the duration."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(out.parent / f".{out.name}.lock", os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise VlaprobeError(
+                f"{flag} {out} is being written by another `vlaprobe train`; wait for it to finish or use another {flag}"
+            ) from None
+        clean_leftovers(out)
+        yield
+    finally:
+        os.close(fd)
+
+
+def replace_folder(out: Path, write: Callable[[Path], None]) -> Path:
+    """Have ``write`` fill a fresh folder, then swap it in for ``out`` (whose old files are all dropped)."""
+    tag = uuid.uuid4().hex[:8]
+    tmp = out.parent / f".{out.name}.{tag}.partial"
+    tmp.mkdir(parents=True)
+    old = out.parent / f".{out.name}.{tag}.old"
+    try:
+        write(tmp)
+        if out.exists():
+            os.rename(out, old)
+        try:
+            os.rename(tmp, out)
+        except BaseException:
+            if old.exists():
+                os.rename(old, out)
+            raise
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    shutil.rmtree(old, ignore_errors=True)
+    return out

@@ -1,0 +1,268 @@
+"""The evaluation of a probe run (``evaluation.json``) as dataclasses, shared by its writer and its readers.
+
+``vlaprobe train`` builds an :class:`Evaluation` and writes it with :func:`write_evaluation`; ``vlaprobe
+report`` (and anything else) reads it with :func:`read_evaluation`. This module imports no torch. Arrays are
+nested lists with ``None`` for undefined (NaN) values; :func:`arr` turns them back into float arrays.
+
+Format version 2 (version 1 had none of these): every figure records in how many bootstrap resamples it was
+defined (``defined``); the shuffled-label control is the mean of several permutations, with their spread
+(``control_spread``); the split records the realized test fraction next to the requested one.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import dacite
+import numpy as np
+
+from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import write_atomic
+
+FORMAT = "vlaprobe-evaluation"
+FORMAT_VERSION = 2
+EVALUATION_FILE = "evaluation.json"
+CONFIG_FILE = "config.json"
+PARTS = ("probe", "baseline", "control", "selectivity", "observer")
+"""The metric summaries a head may have, in display order."""
+
+Nested = list[Any]
+"""A JSON array of any depth: floats, ints or None (NaN)."""
+
+
+@dataclass
+class Level:
+    """One level of a metric summary: per atom (layers, atoms), per predicate (layers, predicates), per layer."""
+
+    value: Nested
+    """Point value on the held-out steps."""
+    low: Nested
+    """2.5th percentile over the bootstrap resamples (None where fewer than 2 resamples defined it)."""
+    high: Nested
+    """97.5th percentile, same."""
+    defined: Nested
+    """Resamples in which the figure was defined over all of its atoms (an atom: in which it was defined)."""
+    count: Nested | None = None
+    """Averages only: how many atoms were defined in the point value."""
+
+
+@dataclass
+class MetricSummary:
+    """One metric at the three levels; intervals of averages come from the same resamples as the atoms'."""
+
+    atom: Level
+    predicate: Level
+    layer: Level
+
+
+@dataclass
+class Spread:
+    """Standard deviation over the shuffled-label permutations of their per-predicate and per-layer means."""
+
+    predicate: Nested
+    """(layers, predicates)."""
+    layer: Nested
+    """(layers,)."""
+
+
+@dataclass
+class BestLayer:
+    """The head's best layer on the held-out data and the rule that chose it."""
+
+    layer: int
+    """Hidden-state index."""
+    index: int
+    """Position in the per-layer arrays."""
+    metric: str
+    value: float | None
+    low: float | None
+    high: float | None
+    rule: str
+
+
+@dataclass
+class DroppedAtom:
+    """An atom not probed: too rare or too common in a training split."""
+
+    atom: str
+    train_frequency: float
+    reason: str
+
+
+@dataclass
+class HeadResult:
+    """Everything measured for one label head ("object" or "action")."""
+
+    atoms: list[str]
+    """Probed atoms (the columns of every per-atom array)."""
+    predicates: list[str]
+    """Predicates with at least one probed atom, in the paper's figure order."""
+    predicate_atoms: dict[str, list[str]]
+    skipped_predicates: list[str]
+    """Predicates whose atoms were all dropped."""
+    dropped: list[DroppedAtom]
+    train_frequency: Nested
+    test_frequency: Nested
+    best: BestLayer
+    probe: dict[str, MetricSummary]
+    """Metric name -> summary of the probes."""
+    baseline: dict[str, MetricSummary]
+    """The majority-class baseline (one row: it does not depend on the layer)."""
+    control: dict[str, MetricSummary] | None = None
+    """The shuffled-label control: mean over the permutations (point and resamples)."""
+    control_spread: dict[str, Spread] | None = None
+    """Standard deviation of the control over its permutations."""
+    selectivity: dict[str, MetricSummary] | None = None
+    """Probe minus the control's mean, per resample."""
+    observer: dict[str, MetricSummary] | None = None
+    """The same probes trained on a second observer's hidden states."""
+    observer_best: BestLayer | None = None
+
+    def part(self, name: str) -> dict[str, MetricSummary] | None:
+        """One of :data:`PARTS` by name (None when this run has no such part)."""
+        return getattr(self, name)
+
+
+@dataclass
+class SkippedHead:
+    reason: str
+    dropped: list[DroppedAtom]
+
+
+@dataclass
+class Episodes:
+    episodes: int
+    steps: int
+
+
+@dataclass
+class Split:
+    unit: str
+    stratified_by: str
+    folds: int
+    test_fraction: float
+    """The requested share of episodes held out (1/folds for k-fold)."""
+    realized_test_fraction: float
+    """The share actually held out: test episodes / all episodes (per fold for k-fold), after rounding."""
+    train: Episodes
+    test: Episodes
+    test_episodes: list[str]
+    leak_check: str
+
+
+@dataclass
+class Dataset:
+    episodes: int
+    steps: int
+    episodes_per_task: dict[str, int]
+
+
+@dataclass
+class Bootstrap:
+    unit: str
+    interval: str
+    resamples: int
+    auprc_resamples: int
+    undefined: str
+    """How resamples in which a figure is undefined are treated."""
+
+
+@dataclass
+class ObserverInfo:
+    model_id: str
+    pooling: str
+    layers: list[int]
+    same_episodes: bool
+    steps: int
+    episodes: int
+
+
+@dataclass
+class Controls:
+    shuffled_labels: bool
+    shuffled_permutations: int
+    """Label permutations trained for the shuffled-label control (0 without it)."""
+    observer: ObserverInfo | None = None
+
+
+@dataclass
+class Evaluation:
+    """The content of ``evaluation.json``."""
+
+    model_id: str
+    pooling: str
+    layers: list[int]
+    hidden_size: int
+    threshold: float
+    metrics: list[str]
+    dataset: Dataset
+    split: Split
+    bootstrap: Bootstrap
+    controls: Controls
+    heads: dict[str, HeadResult]
+    config: dict[str, Any]
+    seeds: dict[str, int]
+    versions: dict[str, str]
+    skipped_heads: dict[str, SkippedHead] = field(default_factory=dict)
+    seconds: dict[str, float] = field(default_factory=dict)
+    format: str = FORMAT
+    format_version: int = FORMAT_VERSION
+
+
+# -- conversions -------------------------------------------------------------------------------------------
+
+
+def nested(x: Any) -> Nested:
+    """A float array as nested lists, NaN -> None, rounded to 5 decimals (ints and bools as they are)."""
+    a = np.asarray(x)
+    if a.dtype.kind in "iub":
+        return a.tolist()
+    rounded = np.round(a.astype(np.float64), 5)
+    return np.where(np.isnan(rounded), None, rounded).tolist()
+
+
+def number(x: Any) -> float | None:
+    """One float rounded to 5 decimals, NaN -> None."""
+    x = float(x)
+    return None if math.isnan(x) else round(x, 5)
+
+
+def arr(x: Nested | None) -> np.ndarray:
+    """Nested lists back to a float array (None -> NaN)."""
+    return np.array(x, dtype=float)
+
+
+def write_evaluation(folder: Path, evaluation: Evaluation) -> Path:
+    """Write ``evaluation.json`` atomically; return its path."""
+    path = Path(folder) / EVALUATION_FILE
+    write_atomic(path, json.dumps(asdict(evaluation), allow_nan=False) + "\n")
+    return path
+
+
+def read_evaluation(folder: str | Path) -> Evaluation:
+    """Read ``<folder>/evaluation.json``; a one-line error if it is missing, damaged or of another version."""
+    path = Path(folder) / EVALUATION_FILE
+    hint = "pass the folder written by vlaprobe train (--probes)"
+    if Path(folder).is_file():
+        raise VlaprobeError(f"{folder} is a file, not a probe folder; {hint}")
+    if not path.is_file():
+        raise VlaprobeError(f"no {EVALUATION_FILE} in {folder}; {hint}")
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise VlaprobeError(f"cannot read {path}: {exc}; run vlaprobe train again") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise VlaprobeError(f"{path} is not a vlaprobe evaluation; {hint}")
+    if data.get("format_version") != FORMAT_VERSION:
+        raise VlaprobeError(
+            f"{path} is a vlaprobe evaluation of format version {data.get('format_version')}, this vlaprobe "
+            f"reads version {FORMAT_VERSION}; run vlaprobe train again"
+        )
+    try:
+        return dacite.from_dict(Evaluation, data, config=dacite.Config(check_types=False))
+    except (dacite.DaciteError, TypeError, ValueError) as exc:
+        raise VlaprobeError(f"{path} is damaged ({exc}); run vlaprobe train again") from None

@@ -1,0 +1,223 @@
+"""The one step loop both collection and the live server run.
+
+Per step ``t``: snapshot the world and label it (``label_ms``), show the observation to the observer model
+(``model_ms``), let the driver choose the action (``driver_ms``), yield a :class:`StepRecord`, then step the
+simulator (``env_ms``, reported on the next record). The image, hidden states, atoms, proprioception and both
+actions of a record all belong to observation ``t``.
+
+A caller may stop, pause or perturb the episode between steps through an :class:`EpisodeControl`;
+collection passes none and buffers the records into the store (``vlaprobe.collection.worker``).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from vlaprobe.envs.base import Observation, TaskEnv
+from vlaprobe.errors import VlaprobeError
+from vlaprobe.policies.base import VLAPolicy
+from vlaprobe.rollout.drivers import Driver
+from vlaprobe.symbols import WorldState
+
+GRIPPER_OPEN = -1.0
+
+
+@dataclass
+class StepTimings:
+    """Where one step's time went, in milliseconds."""
+
+    env_ms: float
+    """The simulator step (with its camera render) that produced this observation; the reset for row 0."""
+    label_ms: float
+    """World-state snapshot and every detector."""
+    model_ms: float
+    """The observer model's step (preprocessing, forward pass with capture, action decoding)."""
+    driver_ms: float
+    """The driver's action choice (the scripted expert's planning; ~0 when the model drives)."""
+    total_ms: float
+    """All of the above."""
+
+
+@dataclass
+class StepRecord:
+    """Everything known about one observation of an episode."""
+
+    t: int
+    """Row index in the episode (0 at the first observation)."""
+    step: int
+    """The simulator's step counter since the settled reset."""
+    raw_image: np.ndarray
+    """The agentview render as robosuite gives it (H, W, 3) uint8, upside down."""
+    model_image: np.ndarray
+    """(224, 224, 3) uint8, upright: the image exactly as the model saw it."""
+    hidden: np.ndarray
+    """float32 (layers, hidden) or (layers, 7, hidden) for "action_tokens" pooling."""
+    object_atoms: np.ndarray
+    """bool, the vocabulary's object atoms in order."""
+    action_atoms: np.ndarray
+    """bool, the vocabulary's action atoms in order."""
+    world: WorldState
+    """The simulator snapshot the atoms were computed from."""
+    proprio: np.ndarray
+    """float32 (9,): end-effector position, quaternion xyzw, finger joint positions."""
+    action: np.ndarray
+    """(7,) the action executed after this observation; NaN on the terminal row (none was executed)."""
+    predicted_action: np.ndarray
+    """(7,) the observer model's own action for this observation."""
+    action_tokens: np.ndarray
+    """(7,) the token ids the predicted action was decoded from."""
+    success: bool
+    """The task's own success check holds at this observation."""
+    terminal: bool
+    """The last row of the episode."""
+    perturbed: bool
+    """A perturbation (:meth:`EpisodeControl.drop`) overrode the driver's action on this row."""
+    timings: StepTimings
+    """Where this step's time went."""
+
+
+class EpisodeControl:
+    """Stop, pause or perturb a running episode from another thread; the loop checks it between steps."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._running = threading.Event()
+        self._running.set()
+        self._drop_steps = 0
+
+    def stop(self) -> None:
+        """End the episode after the current step (a paused loop wakes up and ends)."""
+        self._stop.set()
+        self._running.set()
+
+    def pause(self) -> None:
+        """Block the loop before its next simulator step until :meth:`resume` or :meth:`stop`."""
+        self._running.clear()
+
+    def resume(self) -> None:
+        self._running.set()
+
+    def drop(self, steps: int = 8) -> None:
+        """Force the executed gripper command open (-1) for the next ``steps`` steps; then the driver goes on."""
+        if steps < 1:
+            raise VlaprobeError(f"drop needs at least 1 step, got {steps}")
+        with self._lock:
+            self._drop_steps = steps
+
+    @property
+    def stopped(self) -> bool:
+        return self._stop.is_set()
+
+    @property
+    def paused(self) -> bool:
+        return not self._running.is_set()
+
+    def wait_while_paused(self) -> None:
+        """Block while paused (returns at once when running or stopped)."""
+        self._running.wait()
+
+    def take_drop(self) -> bool:
+        """Whether this step is perturbed (consumes one step of a pending drop)."""
+        with self._lock:
+            if self._drop_steps <= 0:
+                return False
+            self._drop_steps -= 1
+            return True
+
+
+def _ms(start: float) -> float:
+    return (time.perf_counter() - start) * 1000.0
+
+
+def run_episode(
+    env: TaskEnv,
+    policy: VLAPolicy,
+    driver: Driver,
+    *,
+    init: int,
+    max_steps: int,
+    post_success_steps: int = 0,
+    control: EpisodeControl | None = None,
+) -> Iterator[StepRecord]:
+    """Reset ``env`` to init state ``init`` and yield one record per observation until the episode ends.
+
+    The episode ends ``post_success_steps`` rows after the first observation where the task succeeds (that
+    row is the terminal one, its action NaN), after ``max_steps`` actions without success (the observation
+    after the last action is not recorded: nothing was learned from it and no action follows), or when
+    ``control`` is stopped (then no further row is yielded; the last one yielded is not marked terminal). With ``post_success_steps == 0`` the success observation is the last row: it is
+    the first state in which the goal atom holds.
+    """
+    if max_steps < 1:
+        raise VlaprobeError(f"--env.max-steps must be at least 1, got {max_steps}")
+    if post_success_steps < 0:
+        raise VlaprobeError(f"--post-success-steps must be 0 or more, got {post_success_steps}")
+    start = time.perf_counter()
+    obs: Observation = env.reset(init)
+    driver.reset()
+    env_ms = _ms(start)
+    if obs.image is None:
+        raise VlaprobeError("the simulator renders no image; the model needs it (drop --env.no-render)")
+    success_row: int | None = None
+    for t in range(max_steps + 1):
+        if obs.success and success_row is None:
+            success_row = t
+        reached = success_row is not None and t >= success_row + post_success_steps
+        terminal = reached or t == max_steps
+        if terminal and success_row is None:
+            break
+        t0 = time.perf_counter()
+        world = env.world_state()
+        object_atoms, action_atoms = env.labeler(world)
+        t1 = time.perf_counter()
+        out = policy.step(obs.image, env.instruction)
+        t2 = time.perf_counter()
+        perturbed = False
+        if terminal:
+            action = np.full(7, np.nan)
+        else:
+            action = np.asarray(driver.act(obs, out), dtype=np.float64)
+            if control is not None and control.take_drop():
+                action = action.copy()
+                action[6] = GRIPPER_OPEN
+                perturbed = True
+        t3 = time.perf_counter()
+        label_ms, model_ms, driver_ms = (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3
+        yield StepRecord(
+            t=t,
+            step=obs.step,
+            raw_image=obs.image,
+            model_image=out.model_image,
+            hidden=out.hidden,
+            object_atoms=object_atoms,
+            action_atoms=action_atoms,
+            world=world,
+            proprio=obs.proprio,
+            action=action,
+            predicted_action=out.action,
+            action_tokens=out.action_tokens,
+            success=obs.success,
+            terminal=terminal,
+            perturbed=perturbed,
+            timings=StepTimings(
+                env_ms=env_ms,
+                label_ms=label_ms,
+                model_ms=model_ms,
+                driver_ms=driver_ms,
+                total_ms=env_ms + label_ms + model_ms + driver_ms,
+            ),
+        )
+        if terminal:
+            return
+        if control is not None:
+            control.wait_while_paused()
+            if control.stopped:
+                return
+        t4 = time.perf_counter()
+        obs = env.step(action)
+        env_ms = _ms(t4)

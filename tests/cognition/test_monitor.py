@@ -1,0 +1,165 @@
+"""`vlaprobe monitor` on a store written by the collection's writer and probes that read the labels back."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from tests.cognition.scenes import APPROACH, BOWL2, CARRY, COOKIES, PLACED, PLATE, VOCAB, arrays
+
+from vlaprobe.cli import main as cli_main
+from vlaprobe.cognition.monitor import MONITOR_FILE, monitor, render_section, report_section
+from vlaprobe.collection.store import EpisodeInfo
+from vlaprobe.collection.writer import StoreWriter
+from vlaprobe.configs.monitor import MonitorConfig
+from vlaprobe.probes.probeset import FORMAT, FORMAT_VERSION, ProbeSet
+
+SETTLING = frozenset({f"should-move-towards({PLATE})"})
+STEPS = [APPROACH] * 6 + [CARRY] * 6 + [SETTLING] * 2 + [PLACED] * 6
+GOAL_STEP = 14
+FLICKER = f"left-of({BOWL2},{COOKIES})"
+ATOMS = {"object": list(VOCAB.object_atoms), "action": list(VOCAB.action_atoms)}
+SIZE = len(VOCAB.object_atoms) + len(VOCAB.action_atoms)
+KEYS = ["t00_i00_a00", "t00_i01_a00", "t00_i02_a00"]
+
+
+def labels() -> np.ndarray:
+    return np.array([np.concatenate(arrays(s)) for s in STEPS])
+
+
+def write_run(root: Path) -> tuple[Path, Path]:
+    """Three episodes; the hidden state spells the labels (+-1), except where the probes should err."""
+    meta = {
+        "atom_names": ATOMS, "model_id": "fake", "model": {"model_id": "fake"}, "num_hidden_states": 2,
+        "hidden_size": SIZE, "pooling": "last_prompt", "driver": "expert", "suite": "libero_spatial",
+        "env": {}, "seed": 0,
+    }  # fmt: skip
+    n_obj = len(VOCAB.object_atoms)
+    with StoreWriter.open(root / "store", meta) as writer:
+        for e, key in enumerate(KEYS):
+            y = labels()
+            x = y.astype(np.float32) * 2 - 1
+            if e == 1:  # a one-step flicker of an inconsistent atom
+                x[3, VOCAB.object_atoms.index(FLICKER)] = 1
+            if e == 2:  # the probes never see the goal
+                x[:, VOCAB.object_atoms.index(next(iter(PLACED)))] = -1
+            hidden = np.stack([x, x]).astype(np.float16)
+            info = EpisodeInfo(
+                key=key, task=0, init=e, attempt=0, success=True, length=len(y), seed=e, driver="expert"
+            )
+            arrays_ = {"hidden": hidden, "object_atoms": y[:, :n_obj], "action_atoms": y[:, n_obj:]}
+            writer.write_episode(info, arrays_, {"goal": {"pick": "akita_black_bowl_1", "place": PLATE}})
+    # probes: every atom that varies, the flicker atom, and one constant-true atom dropped at its majority
+    y = labels()
+    varying = set(np.flatnonzero(y.any(0) & ~y.all(0)).tolist()) | {VOCAB.object_atoms.index(FLICKER)}
+    heads, tensors = {}, {}
+    for h, offset in (("object", 0), ("action", n_obj)):
+        names = ATOMS[h]
+        kept = [j for j in range(len(names)) if j + offset in varying]
+        dropped = [
+            {"atom": names[j], "train_frequency": float(y[:, j + offset].mean()), "reason": "rare"}
+            for j in range(len(names))
+            if j not in kept
+        ]
+        w = torch.zeros(2, SIZE, len(kept))
+        for c, j in enumerate(kept):
+            w[:, j + offset, c] = 10.0
+        tensors[f"{h}.weight"], tensors[f"{h}.bias"] = w, torch.zeros(2, len(kept))
+        heads[h] = {
+            "atom_names": names,
+            "kept": [names[j] for j in kept],
+            "dropped": dropped,
+            "best_layer": 1,
+        }
+    pmeta = {
+        "format": FORMAT, "format_version": FORMAT_VERSION, "model_id": "fake", "pooling": "last_prompt",
+        "hidden_size": SIZE, "num_hidden_states": 2, "layers": [0, 1], "threshold": 0.5, "heads": heads,
+        "trained_on": {"split": "training split"},
+    }  # fmt: skip
+    probes = ProbeSet(pmeta, tensors).save(root / "probes")
+    (probes / "evaluation.json").write_text(json.dumps({"split": {"test_episodes": KEYS}}))
+    return root / "store", probes
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    return write_run(tmp_path_factory.mktemp("monitor"))
+
+
+def test_monitor_compares_truth_and_probes(run: tuple[Path, Path]) -> None:
+    store, probes = run
+    result = monitor(MonitorConfig(store=store, probes=probes, debounce=1))
+    assert (result.episodes, result.steps, result.held_out) == (3, 3 * len(STEPS), True)
+    assert result.truth.violations_per_100_steps == 0 and set(result.truth.violations.values()) == {0}
+    p = result.probes
+    # the flicker; and in the episode whose goal the probes miss, no object to move towards after placing
+    assert {r: n for r, n in p.violations.items() if n} == {"left_right_converse": 1, "towards_not_one": 1}
+    assert p.violations_per_100_steps == pytest.approx(2 * 100 / (3 * len(STEPS)))
+    g = p.goal_detection
+    assert (g.precision, g.mean_delay_steps) == (1.0, 0.0) and g.recall == pytest.approx(2 / 3)
+    assert [e.goal_step_truth for e in result.per_episode] == [GOAL_STEP] * 3
+    assert [e.goal_step_probes for e in result.per_episode] == [GOAL_STEP, GOAL_STEP, None]
+    assert p.subgoal_accuracy == pytest.approx((3 * len(STEPS) - (len(STEPS) - GOAL_STEP)) / (3 * len(STEPS)))
+    assert 0.95 < p.belief_agreement < 1
+    assert p.flips_per_step == p.flips_per_step_debounced > 0
+    written = json.loads((probes / MONITOR_FILE).read_text())
+    assert (
+        written["probes"]["violations"]["left_right_converse"] == 1
+        and written["format"] == "vlaprobe-monitor"
+    )
+
+
+def test_debouncing_removes_the_flicker(run: tuple[Path, Path], tmp_path: Path) -> None:
+    store, probes = run
+    result = monitor(MonitorConfig(store=store, probes=probes, debounce=3, out=tmp_path))
+    assert {r: n for r, n in result.probes.violations.items() if n} == {"towards_not_one": 1}
+    assert result.probes.flips_per_step_debounced < result.probes.flips_per_step
+    assert (tmp_path / MONITOR_FILE).is_file()
+
+
+def test_cli_prints_the_figures_as_json(
+    run: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    store, probes = run
+    assert (
+        cli_main(
+            ["monitor", "--store", str(store), "--probes", str(probes), "--out", str(tmp_path), "--json"]
+        )
+        == 0
+    )
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert set(out) == {"episodes", "steps", "truth", "probes"}
+    assert set(out["truth"]) == {"violations_per_100_steps", "violations"}
+    assert set(out["probes"]) == {
+        "violations_per_100_steps", "violations", "goal_detection", "subgoal_accuracy", "belief_agreement",
+        "flips_per_step", "flips_per_step_debounced",
+    }  # fmt: skip
+    assert set(out["probes"]["goal_detection"]) == {"precision", "recall", "mean_delay_steps"}
+
+
+def test_the_report_section_renders_every_rule(run: tuple[Path, Path], tmp_path: Path) -> None:
+    store, probes = run
+    result = monitor(MonitorConfig(store=store, probes=probes, out=tmp_path))
+    html = render_section(result)
+    assert html.count("<table>") == 3 and all(rule in html for rule in result.truth.violations)
+    assert render_section(json.loads((tmp_path / MONITOR_FILE).read_text())) == html
+    section = report_section(tmp_path)  # what the report's section provider finds in a probe folder
+    assert section.id == "cognition" and section.data["steps"] == result.steps
+    assert report_section(tmp_path / "elsewhere") is None
+
+
+def test_bad_input_is_a_one_line_error(
+    run: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    store, probes = run
+    assert cli_main(["monitor", "--store", str(tmp_path / "none"), "--probes", str(probes)]) == 2
+    assert cli_main(["monitor", "--store", str(store), "--probes", str(tmp_path)]) == 2
+    bad = tmp_path / "bad.lp"
+    bad.write_text("violation(x, A) :- lefty(A).\n")
+    assert cli_main(["monitor", "--store", str(store), "--probes", str(probes), "--rules", str(bad)]) == 2
+    errors = capsys.readouterr().err.strip().splitlines()
+    assert len(errors) == 3 and all(e.startswith("vlaprobe: error: ") for e in errors)
+    assert f"{bad}:1:" in errors[2]

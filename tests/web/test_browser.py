@@ -1,0 +1,173 @@
+"""End to end in a real browser: `vlaprobe serve` (tiny model, LIBERO, the cognition) and the web UI in Debian's
+chromium, driven by Playwright. The UI starts a task, streams frames, marks a flip, ends the episode, scrubs the
+timeline (mouse, keyboard, raster click) and replays the recording; every step it shows is compared with the
+server's record. Then the server restarts and the page must reconnect by itself and list the recording again.
+Screenshots go to test-output/browser/; live-view.png is also the README's docs/img/live-view.png (written when
+missing, refreshed with VLAPROBE_UPDATE_SCREENSHOT=1).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+import torch
+from tests.web.browser import CHROMIUM, run_browser
+
+REPO = Path(__file__).resolve().parents[2]
+OUT = REPO / "test-output" / "browser"
+
+pytestmark = [
+    pytest.mark.libero,
+    pytest.mark.timeout(900),
+    pytest.mark.skipif(
+        not CHROMIUM.exists(), reason="needs Debian's chromium at /usr/bin/chromium (apt install chromium)"
+    ),
+]
+
+
+def make_tiny_probes(folder: Path) -> None:
+    """Random linear probes for the tiny model on LIBERO-spatial's atoms, in `vlaprobe train`'s format.
+
+    Random weights read the tiny model's hidden states: predictions change with the frames, so flips happen;
+    every seventh atom is left unprobed (held at a majority value), as training does for near-constant atoms.
+    """
+    from vlaprobe.configs.env import EnvConfig
+    from vlaprobe.envs import make_env
+    from vlaprobe.policies import load_policy
+    from vlaprobe.probes.probeset import ProbeSet
+    from vlaprobe.symbols.vocabulary import build_vocabulary
+
+    policy = load_policy("tiny", device="cpu")
+    env = make_env(0, EnvConfig())
+    try:
+        vocab = build_vocabulary(env.scene)
+    finally:
+        env.close()
+    hidden_size = int(policy.hidden_size)
+    num_hidden_states = int(policy.num_hidden_states)
+    layers = [num_hidden_states - 1]
+    g = torch.Generator().manual_seed(0)
+    tensors, heads = {}, {}
+    for head, atoms in (("object", vocab.object_atoms), ("action", vocab.action_atoms)):
+        kept = [a for i, a in enumerate(atoms) if i % 7 != 6]
+        dropped = [{"atom": a, "train_frequency": 0.0, "reason": "constant"} for a in atoms if a not in kept]
+        tensors[f"{head}.weight"] = torch.randn(1, hidden_size, len(kept), generator=g) / hidden_size**0.5
+        tensors[f"{head}.bias"] = torch.zeros(1, len(kept))
+        heads[head] = {
+            "atom_names": list(atoms),
+            "kept": kept,
+            "kept_index": [atoms.index(a) for a in kept],
+            "dropped": dropped,
+            "best_layer": layers[0],
+            "best_metric": "accuracy",
+        }
+    meta = {
+        "format": "vlaprobe-probes",
+        "format_version": 1,
+        "model_id": policy.model_id,
+        "pooling": policy.pooling,
+        "hidden_size": hidden_size,
+        "num_hidden_states": num_hidden_states,
+        "layers": layers,
+        "threshold": 0.5,
+        "heads": heads,
+        "standardized": False,
+    }
+    ProbeSet(meta, tensors).save(folder)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class Serve:
+    """`vlaprobe serve` with the tiny model on 127.0.0.1 as a subprocess; restartable on the same port."""
+
+    def __init__(self, tmp: Path) -> None:
+        self.tmp, self.port = tmp, free_port()
+        self.base = f"http://127.0.0.1:{self.port}"
+        self.proc: subprocess.Popen | None = None
+        self.log_path = tmp / "serve.log"
+
+    def start(self, timeout_s: float = 240) -> None:
+        cmd = [
+            str(Path(sys.executable).with_name("vlaprobe")),
+            "serve",
+            "--probes", str(self.tmp / "probes"),
+            "--recordings", str(self.tmp / "live"),
+            "--host", "127.0.0.1",
+            "--port", str(self.port),
+        ]  # fmt: skip
+        with open(self.log_path, "a") as log:
+            self.proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if self.proc.poll() is not None:
+                pytest.fail(
+                    f"vlaprobe serve exited ({self.proc.returncode}): {self.log_path.read_text()[-2000:]}"
+                )
+            try:
+                with urllib.request.urlopen(self.base + "/api/episodes", timeout=2):
+                    return
+            except OSError:
+                if time.monotonic() > deadline:
+                    pytest.fail(f"vlaprobe serve did not come up: {self.log_path.read_text()[-2000:]}")
+                time.sleep(0.5)
+
+    def stop(self) -> None:
+        if self.proc is None:
+            return
+        self.proc.terminate()
+        try:
+            self.proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        self.proc = None
+
+    def restart(self) -> None:
+        self.stop()
+        self.start()
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory):
+    """A running `vlaprobe serve` on random tiny-model probes."""
+    tmp = tmp_path_factory.mktemp("serve")
+    make_tiny_probes(tmp / "probes")
+    srv = Serve(tmp)
+    try:
+        srv.start()
+        yield srv
+    finally:
+        srv.stop()
+
+
+def test_live_episode_timeline_replay_and_reconnect_in_chromium(server: Serve) -> None:
+    if OUT.exists():
+        shutil.rmtree(OUT)
+    run = run_browser(
+        server.base, OUT, max_steps=30, min_steps=10, episode_timeout_s=240, restart=server.restart
+    )
+    assert run.distinct_frames >= 10, run.distinct_frames
+    assert run.saw_turned_on, "no atom was shown as just turned true"
+    assert len(run.checked_steps) >= 5
+    assert run.reconnected, "the page did not reconnect after the server restarted"
+    assert not run.console_errors, run.console_errors
+    for name in ("live-view.png", "timeline.png"):
+        assert (OUT / name).stat().st_size > 10_000, name
+    # The README's screenshot: written when missing, or refreshed on request (not on every run: no churn).
+    readme_image = REPO / "docs" / "img" / "live-view.png"
+    if not readme_image.exists() or os.environ.get("VLAPROBE_UPDATE_SCREENSHOT") == "1":
+        readme_image.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(OUT / "live-view.png", readme_image)
