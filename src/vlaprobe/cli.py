@@ -115,7 +115,17 @@ def _one_line(panel: str) -> str:
     return " ".join(" ".join(message).split()) or "could not parse the command line"
 
 
-PATH_FLAGS = ("out", "store", "probes", "observer-store", "observer_store", "assets", "recordings", "model", "path")
+PATH_FLAGS = (
+    "out",
+    "store",
+    "probes",
+    "observer-store",
+    "observer_store",
+    "assets",
+    "recordings",
+    "model",
+    "path",
+)
 """Flags (last dotted part) whose empty value would silently mean the current folder."""
 
 
@@ -171,7 +181,11 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:  # a full disk, a read-only or vanished folder met while writing
         where = f" {exc.filename}" if exc.filename else ""
         reason = exc.strerror or str(exc)
-        fix = "free some disk space" if exc.errno in (errno.ENOSPC, errno.EDQUOT) else "check the path and its permissions"
+        fix = (
+            "free some disk space"
+            if exc.errno in (errno.ENOSPC, errno.EDQUOT)
+            else "check the path and its permissions"
+        )
         print(f"vlaprobe: error: cannot access{where}: {reason}; {fix} and rerun", file=sys.stderr)
         return 2
 

@@ -65,7 +65,9 @@ def check_output_folder(out: str | Path, flag: str = "--out") -> None:
 
     out = Path(out)
     if str(out) in ("", "."):
-        raise VlaprobeError(f"{flag} needs a folder path (got {str(out)!r}); name a new folder, e.g. {flag} runs/mine")
+        raise VlaprobeError(
+            f"{flag} needs a folder path (got {str(out)!r}); name a new folder, e.g. {flag} runs/mine"
+        )
     if out.exists() and not out.is_dir():
         raise VlaprobeError(f"{flag} {out} is a file, not a folder; choose a folder path")
     parent = out

@@ -121,3 +121,10 @@ def test_collect_resume_says_how_to_repair(tmp_path: Path) -> None:
     collect(cfg, make_fake_worker)
     assert check_store(cfg.out, read=True) == []
     assert key in {e.key for e in ActivationStore.open(cfg.out).episodes()}
+
+
+def test_damaged_array_read_by_name_is_one_line(store: Path) -> None:
+    _truncate_chunk(store)
+    arrays = ActivationStore.open(store).episode(KEY)
+    with pytest.raises(VlaprobeError, match=f"episodes/{KEY} is damaged \\(hidden"):
+        arrays["hidden"]

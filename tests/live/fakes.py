@@ -36,6 +36,7 @@ class SignReadout:
 
     def __init__(self, atoms: dict[str, list[str]], layers: dict[str, int]) -> None:
         self.atoms, self.layers, self.threshold = atoms, layers, 0.5
+        self.probed = {h: np.arange(len(names)) % 5 != 4 for h, names in atoms.items()}
 
     def read(self, hidden: np.ndarray) -> dict[str, Reading]:
         out = {}
@@ -43,7 +44,7 @@ class SignReadout:
             x = np.asarray(hidden, np.float32)[self.layers[h]]
             idx = np.arange(len(names)) % x.shape[-1]
             p = 1 / (1 + np.exp(-x[idx]))
-            probed = np.arange(len(names)) % 5 != 4
+            probed = self.probed[h]
             out[h] = Reading(values=(p > 0.5) & probed, probs=np.where(probed, p, np.nan), probed=probed)
         return out
 

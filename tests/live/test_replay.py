@@ -84,6 +84,10 @@ def test_replay_streams_over_the_websocket(fake_run: Path, tmp_path: Path) -> No
         assert "no episode is running" in json.loads(ws.receive_text())["message"]
     steps = [m for m in msgs if m["type"] == "step"]
     assert msgs[0]["source"] == "store" and len(steps) == len(rest["steps"])
+    # The episode's not-probed atoms are the probes' dropped ones: null probabilities in every step.
+    for h in ("object", "action"):
+        assert msgs[0]["probed"][h] == hello["probes"]["probed"][h]
+        assert [p is not None for p in steps[0]["predicted"][h]["probs"]] == msgs[0]["probed"][h]
     assert [s["predicted"] for s in steps] == [s["predicted"] for s in rest["steps"]]
     assert not (tmp_path / "live").exists() or not any(
         (tmp_path / "live").iterdir()

@@ -164,7 +164,10 @@ def _ratio(a: float, b: float) -> float | None:
 def monitor(cfg: MonitorConfig) -> MonitorResult:
     """Run the cognition over the episodes on truth and on predictions; write ``monitor.json``."""
     from vlaprobe.collection.store import ActivationStore
+    from vlaprobe.files import check_output_folder
 
+    if cfg.out is not None:
+        check_output_folder(cfg.out)  # before the episodes are run, not after
     store = ActivationStore.open(cfg.store)
     readout = ProbeReadout.load(cfg.probes, model_id=store.model_id)
     for h in HEADS:

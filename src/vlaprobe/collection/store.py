@@ -105,7 +105,7 @@ def read_meta(path: Path, hint: str = "pass the --out folder of a `vlaprobe coll
     if not path.exists():
         raise VlaprobeError(f"no activation store at {path}: the folder does not exist; {hint}")
     if not path.is_dir():
-        raise VlaprobeError(f"{path} is a file, not an activation store folder; {hint}")
+        raise VlaprobeError(f"{path} is not an activation store: it is a file, not a folder; {hint}")
     try:
         root = _read_json(path / "zarr.json")
     except (OSError, ValueError):
@@ -152,7 +152,13 @@ class EpisodeArrays(Mapping[str, np.ndarray]):
         if name not in self._cache:
             if name not in self._names:
                 raise KeyError(name)
-            self._cache[name] = np.asarray(self._group[name][...])
+            try:
+                self._cache[name] = np.asarray(self._group[name][...])
+            except Exception as exc:  # a truncated chunk or bad array metadata: zarr's errors vary
+                raise VlaprobeError(
+                    f"episode {self._group.path} is damaged ({name}: {type(exc).__name__}); see `vlaprobe info "
+                    "--verify STORE`, delete the episode folder and rerun `vlaprobe collect`"
+                ) from None
         return self._cache[name]
 
     def __iter__(self) -> Iterator[str]:

@@ -82,7 +82,9 @@ def check_train(cfg: TrainConfig, prefix: str = "") -> None:
     _at_least(cfg.bootstrap, 0, f("bootstrap"))
     _at_least(cfg.auprc_bootstrap, 0, f("auprc_bootstrap"))
     if cfg.shuffled_control:
-        _at_least(cfg.shuffled_permutations, 1, f("shuffled_permutations"), " (or pass --no-shuffled-control)")
+        _at_least(
+            cfg.shuffled_permutations, 1, f("shuffled_permutations"), " (or pass --no-shuffled-control)"
+        )
     check_seed(cfg.seed, f("seed"))
 
 
@@ -110,7 +112,9 @@ def check_collect(cfg: CollectConfig, prefix: str = "") -> None:
     _at_least(cfg.threads, 1, f("threads"), " (or leave it out for the default)")
     bad_tasks = [t for t in cfg.tasks if t < 0]
     if bad_tasks:
-        raise VlaprobeError(f"{f('tasks')} takes task indices 0, 1, ... (see `vlaprobe tasks`); got {bad_tasks}")
+        raise VlaprobeError(
+            f"{f('tasks')} takes task indices 0, 1, ... (see `vlaprobe tasks`); got {bad_tasks}"
+        )
     if not (math.isfinite(cfg.ray_gpus_per_worker) and cfg.ray_gpus_per_worker >= 0):
         raise VlaprobeError(f"{f('ray_gpus_per_worker')} must be 0 or more, got {cfg.ray_gpus_per_worker}")
     check_env(cfg.env, prefix + "env.")
@@ -134,8 +138,17 @@ def check_run(cfg: RunConfig) -> None:
             f"--collect.episodes-per-task {c.episodes_per_task} leaves no task with 2 episodes, so nothing can be "
             "held out to test the probes; use --collect.episodes-per-task 2 or more"
         )
-    if c.tasks and cfg.train.split.folds > len(c.tasks) * c.episodes_per_task and not c.keep_failed:
+    from vlaprobe.envs.libero import suite_tasks  # the task list needs no assets
+
+    known = [i for i, _ in suite_tasks(c.env.suite)]
+    unknown = [t for t in c.tasks if t not in known]
+    if unknown:
+        raise VlaprobeError(
+            f"--collect.tasks {unknown} do not exist; {c.env.suite} has tasks 0-{max(known)} (see `vlaprobe tasks`)"
+        )
+    episodes = len(c.tasks or known) * c.episodes_per_task
+    if cfg.train.split.folds > episodes and not c.keep_failed:
         raise VlaprobeError(
             f"--train.split.folds {cfg.train.split.folds} needs at least that many episodes; this run keeps "
-            f"{len(c.tasks) * c.episodes_per_task}: lower --train.split.folds or collect more"
+            f"{episodes}: lower --train.split.folds or collect more"
         )

@@ -28,7 +28,8 @@ class RunConfig:
     ``--collect.driver policy``) runs the paper's setting instead. The stages' own output paths
     (``collect.out``, ``train.store``, ``train.out``, ``monitor.store``, ``monitor.probes``, ``monitor.out``,
     ``report.probes``, ``report.out``) are derived from
-    ``--out`` and ignored here. The full config is saved as ``<out>/config.json``; ``vlaprobe run --config
+    ``--out`` and ignored here. Once every stage has succeeded the full config is saved as ``<out>/config.json``
+    (a rejected or failed run leaves the previous one); ``vlaprobe run --config
     <out>/config.json`` repeats the run (it resumes: complete episodes are kept).
     """
 

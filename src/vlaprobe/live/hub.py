@@ -65,7 +65,8 @@ class Client:
     sink: Sink
     image_hz: float
     paper: bool = False
-    """Sent a bare instruction (the paper's client): gets the newest image with every step it is current on."""
+    """Sent a bare instruction (the paper's client): every step it gets carries an image, the newest frame (the
+    paper's UI shows ``image`` of every message; a lagging client sees the newest frame, not a stale one)."""
     log: EpisodeLog | None = None
     pos: int = -1
     """Next step index to send from ``log``; -1: its start is not sent yet."""
@@ -189,9 +190,11 @@ class Hub:
         while c.pos < len(log.states) and not c.closed:
             i = c.pos
             image = None
-            if i == log.image_index == len(log.states) - 1:
+            if c.paper:
+                image = log.image
+            elif i == log.image_index == len(log.states) - 1:
                 now = time.monotonic()
-                if c.paper or now - c.last_image >= 1.0 / c.image_hz:
+                if now - c.last_image >= 1.0 / c.image_hz:
                     image, c.last_image = log.image, now
             await self._send(c, with_image(log.states[i], image))
             c.pos += 1

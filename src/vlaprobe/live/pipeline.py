@@ -36,6 +36,8 @@ class Readout(Protocol):
 
     layers: dict[str, int]
     threshold: float
+    probed: dict[str, np.ndarray]
+    """Per head, (atoms,) bool: which atoms the probes read (the others are held at their training majority)."""
 
     def read(self, hidden: np.ndarray) -> dict[str, Reading]: ...
 
@@ -144,12 +146,11 @@ class StepBuilder:
     def __post_init__(self) -> None:
         self._cog: CognitionLike | None = None
         self._cog_truth: CognitionLike | None = None
-        self._probed: dict[str, np.ndarray] | None = None
 
     def start_message(self) -> P.EpisodeStart:
         s = self.spec
-        probed = self._probed or {h: np.ones(len(s.atoms[h]), bool) for h in HEADS}
-        subgoals = getattr(self._cognition(probed), "subgoals", None) or []
+        probed = {h: np.asarray(self.readout.probed[h], bool) for h in HEADS}
+        subgoals = getattr(self._cognition(), "subgoals", None) or []
         return P.EpisodeStart(
             episode_id=self.episode_id,
             source="store" if s.source == "store" else "live",
@@ -163,9 +164,9 @@ class StepBuilder:
             subgoals=[P.SubgoalInfo(index=int(g.index), name=str(g.name)) for g in subgoals],
         )
 
-    def _cognition(self, probed: dict[str, np.ndarray]) -> CognitionLike:
+    def _cognition(self) -> CognitionLike:
         if self._cog is None:
-            self._probed = probed
+            probed = {h: np.asarray(self.readout.probed[h], bool) for h in HEADS}
             self._cog = self.make_cognition(self.spec.atoms, self.spec.goal, probed)
         return self._cog
 
@@ -176,7 +177,7 @@ class StepBuilder:
         reading = self.readout.read(rec.hidden)
         t1 = time.perf_counter()
         values = {h: np.asarray(reading[h].values, bool) for h in HEADS}
-        cog = self._cognition({h: np.asarray(reading[h].probed, bool) for h in HEADS})
+        cog = self._cognition()
         c = cog.step(values["object"], values["action"])
         t2 = time.perf_counter()
         truth, truth_events = None, []

@@ -35,6 +35,7 @@ class ProbeReading:
         self.readout = ProbeReadout(probes, layers=layers)
         self.layers = {h: int(v) for h, v in self.readout.layers.items()}
         self.threshold = float(probes.threshold)
+        self.probed = {h: np.asarray(self.readout.probed[h], bool) for h in HEADS}
 
     def read(self, hidden: np.ndarray) -> dict[str, Reading]:
         a = self.readout.assign(hidden)
@@ -90,7 +91,9 @@ def load_probes(cfg: ServeConfig) -> Any:
     from vlaprobe.probes import ProbeSet
 
     if cfg.probes.is_file():
-        raise VlaprobeError(f"--probes {cfg.probes} is a file, not a folder; pass the folder vlaprobe train wrote")
+        raise VlaprobeError(
+            f"--probes {cfg.probes} is a file, not a folder; pass the folder vlaprobe train wrote"
+        )
     if not (cfg.probes / "probes.json").is_file():
         raise VlaprobeError(
             f"no probes in {cfg.probes}; run `vlaprobe run` first (or pass --probes DIR from vlaprobe train)"

@@ -87,7 +87,6 @@ def load_store(
     into one vector, so every pooling gives the probes one ``hidden_size`` vector per step.
     """
     from vlaprobe.collection.store import ActivationStore
-
     from vlaprobe.collection.verify import require_intact
 
     store = ActivationStore.open(path)

@@ -16,9 +16,13 @@ import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import check_output_folder
+
+if TYPE_CHECKING:
+    from vlaprobe.probes.data import ProbeData
 
 PROBE_FILES = frozenset(
     {"probes.json", "probes.safetensors", "evaluation.json", "config.json", "monitor.json"}
@@ -30,7 +34,9 @@ def check_probe_folder(out: Path, flag: str = "--out") -> None:
     """Refuse (one line) an ``out`` that is a file, cannot be created, or holds more than a probe folder."""
     check_output_folder(out, flag)
     if out.is_dir():
-        foreign = sorted(p.name for p in out.iterdir() if p.name not in PROBE_FILES and not p.name.startswith("."))
+        foreign = sorted(
+            p.name for p in out.iterdir() if p.name not in PROBE_FILES and not p.name.startswith(".")
+        )
         if foreign:
             shown = ", ".join(foreign[:4]) + (", ..." if len(foreign) > 4 else "")
             raise VlaprobeError(
@@ -94,3 +100,18 @@ def replace_folder(out: Path, write: Callable[[Path], None]) -> Path:
         raise
     shutil.rmtree(old, ignore_errors=True)
     return out
+
+
+def check_free_space(out: Path, data: ProbeData) -> None:
+    """Refuse before training when the folder's disk cannot take the probes (float32 weights of every atom)."""
+    atoms = sum(len(v) for v in data.atom_names.values())
+    need = 4 * len(data.layers) * (data.hidden_size + 1) * atoms + (16 << 20)  # + evaluation.json and slack
+    parent = out
+    while not parent.exists():
+        parent = parent.parent
+    free = shutil.disk_usage(parent).free
+    if free < need:
+        raise VlaprobeError(
+            f"--out {out}: {free / 2**20:.0f} MiB free on its disk, the probes need about {need / 2**20:.0f} MiB; "
+            "free some space or choose another --out"
+        )

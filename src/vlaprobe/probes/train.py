@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from vlaprobe.collection.store import read_meta
 from vlaprobe.configs.checks import check_train
 from vlaprobe.configs.train import TrainConfig
 from vlaprobe.devices import resolve_device
@@ -29,7 +30,7 @@ from vlaprobe.files import versions, write_atomic
 from vlaprobe.probes.data import ProbeData, load_store
 from vlaprobe.probes.evaluate import CrossFit, cross_fit, evaluate_head
 from vlaprobe.probes.metrics import METRICS, bootstrap_weights
-from vlaprobe.probes.outfolder import check_probe_folder, locked, replace_folder
+from vlaprobe.probes.outfolder import check_free_space, check_probe_folder, locked, replace_folder
 from vlaprobe.probes.probeset import FORMAT, FORMAT_VERSION, ProbeSet
 from vlaprobe.probes.results import (
     CONFIG_FILE,
@@ -58,6 +59,9 @@ def train_probes(cfg: TrainConfig) -> Path:
     check_train(cfg)
     out = cfg.out if cfg.out is not None else Path(cfg.store).parent / "probes"
     check_probe_folder(out)
+    for store in (cfg.store, cfg.observer_store):
+        if store is not None:
+            read_meta(Path(store))  # a mistyped store fails before the lock file is created beside --out
     with locked(out):
         data = load_store(cfg.store, heads=cfg.heads, layers=cfg.layers, success_only=cfg.split.success_only)
         observer = None
@@ -65,6 +69,7 @@ def train_probes(cfg: TrainConfig) -> Path:
             observer = load_store(
                 cfg.observer_store, heads=cfg.heads, layers=cfg.layers, success_only=cfg.split.success_only
             )
+        check_free_space(out, data)
         return train_on_data(data, cfg, out, observer=observer)
 
 
@@ -96,7 +101,7 @@ def train_on_data(
         )
 
     # 1. Split by episode; the rows handed to the trainer are checked for leaks.
-    folds = split_episodes(data.episode_tasks, cfg.split.test_fraction, cfg.split.folds, seeds["split"])
+    folds = _split(data, cfg, seeds["split"])
     fold_rows = [(rows_of(data.episode, f.train), rows_of(data.episode, f.test)) for f in folds]
     for train_rows, test_rows in fold_rows:
         check_no_leak(data.episode, train_rows, test_rows)
@@ -184,6 +189,23 @@ def train_on_data(
 
 
 # -- steps ----------------------------------------------------------------------------------------------
+
+
+def _split(data: ProbeData, cfg: TrainConfig, seed: int) -> list[Fold]:
+    """The folds, or a one-line error when the episodes cannot give every fold test and training data."""
+    n = len(data.episode_keys)
+    if cfg.split.folds > n:
+        raise VlaprobeError(
+            f"--split.folds {cfg.split.folds} needs at least {cfg.split.folds} episodes, the store has {n}; "
+            "lower --split.folds or collect more"
+        )
+    folds = split_episodes(data.episode_tasks, cfg.split.test_fraction, cfg.split.folds, seed)
+    if any(not len(f.test) or not len(f.train) for f in folds):
+        raise VlaprobeError(
+            f"no task has 2 episodes ({n} episodes of {len(set(data.episode_tasks.tolist()))} tasks), so none "
+            "can be held out for testing; collect at least 2 episodes of a task (--episodes-per-task 2)"
+        )
+    return folds
 
 
 def _check_heads(data: ProbeData, cfg: TrainConfig) -> list[str]:

@@ -55,9 +55,7 @@ def read_config(folder: Path) -> tuple[OpenVLAConfig, dict[str, Any], dict[str, 
     """(architecture, norm_stats, vlaprobe block or {}) of a checkpoint folder."""
     if not folder.is_dir():
         what = "is a file, not a folder" if folder.exists() else "not found"
-        raise VlaprobeError(
-            f"checkpoint folder {folder} {what}; pass 'tiny' or an OpenVLA checkpoint folder"
-        )
+        raise VlaprobeError(f"checkpoint folder {folder} {what}; pass 'tiny' or an OpenVLA checkpoint folder")
     if not (folder / "config.json").is_file():
         raise VlaprobeError(f"no config.json in {folder}; pass an OpenVLA checkpoint folder (HF layout)")
     raw = _read_json(folder / "config.json")

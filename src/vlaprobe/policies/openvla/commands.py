@@ -53,7 +53,9 @@ def check_checkpoint_folder(out: Path) -> None:
     """Refuse an ``out`` that holds more than a tiny checkpoint (a run, a store...), before writing."""
     check_output_folder(out)
     if out.is_dir():
-        foreign = sorted(p.name for p in out.iterdir() if p.name not in CHECKPOINT_FILES and not p.name.startswith("."))
+        foreign = sorted(
+            p.name for p in out.iterdir() if p.name not in CHECKPOINT_FILES and not p.name.startswith(".")
+        )
         if foreign:
             raise VlaprobeError(
                 f"--out {out} holds other files ({', '.join(foreign[:4])}); choose an empty or new folder"

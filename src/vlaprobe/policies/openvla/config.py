@@ -18,6 +18,24 @@ SUPPORTED_VISION_BACKBONE = "dinosiglip-vit-so-224px"
 """The only vision backbone id every released OpenVLA checkpoint uses (DINOv2 + SigLIP, 224 px)."""
 
 
+def _check_dims(cfg: Any, names: tuple[str, ...]) -> None:
+    """Model sizes read from a checkpoint's config.json must be positive integers (one-line error)."""
+    for name in names:
+        value = getattr(cfg, name)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise VlaprobeError(
+                f"model config: {type(cfg).__name__}.{name} must be a positive integer, got {value!r}; "
+                "fix the checkpoint's config.json"
+            )
+
+
+def _check_divides(part: int, whole: int, part_name: str, whole_name: str) -> None:
+    if whole % part:
+        raise VlaprobeError(
+            f"model config: {whole_name} {whole} is not a multiple of {part_name} {part}; fix the checkpoint's config.json"
+        )
+
+
 @dataclass
 class ViTConfig:
     """One timm-style vision transformer featurizer (parameter names as timm 0.9 writes them)."""
@@ -44,6 +62,10 @@ class ViTConfig:
     """Square input side in pixels."""
     norm_eps: float = 1e-6
     """LayerNorm epsilon."""
+
+    def __post_init__(self) -> None:
+        _check_dims(self, ("embed_dim", "depth", "num_heads", "mlp_hidden", "patch_size", "image_size"))
+        _check_divides(self.num_heads, self.embed_dim, "num_heads", "embed_dim")
 
     @property
     def num_patches(self) -> int:
@@ -99,6 +121,23 @@ class LlamaDims:
     """Llama's ``<s>``."""
     eos_token_id: int = 2
     """Llama's ``</s>``: greedy decoding stops there, as transformers' ``generate`` does."""
+
+    def __post_init__(self) -> None:
+        _check_dims(
+            self,
+            (
+                "hidden_size",
+                "intermediate_size",
+                "num_hidden_layers",
+                "num_attention_heads",
+                "num_key_value_heads",
+                "vocab_size",
+            ),
+        )
+        _check_divides(self.num_attention_heads, self.hidden_size, "num_attention_heads", "hidden_size")
+        _check_divides(
+            self.num_key_value_heads, self.num_attention_heads, "num_key_value_heads", "num_attention_heads"
+        )
 
 
 @dataclass

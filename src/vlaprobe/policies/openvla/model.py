@@ -110,9 +110,12 @@ class OpenVLA(nn.Module):
         per_step = [hidden] if pooling == "action_tokens" else None
         logits = [lm.lm_head(out.last_hidden_state[:, -1])]
         tokens = [logits[-1].argmax(-1)]
+        cache = out.get("cache")  # transformers 5.2x renamed past_key_values (and warns on the old name)
+        if cache is None:
+            cache = out.past_key_values
         decoder = CachedDecoder(
             lm,
-            out["cache"] if "cache" in out else out.past_key_values,  # transformers 5.2x renamed it (and warns)
+            cache,
             out.last_hidden_state.shape[1],
             ACTION_DIM - 1,
             record=per_step is not None,
