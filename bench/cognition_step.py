@@ -21,24 +21,12 @@ import numpy as np
 
 from vlaprobe.cognition import Cognition, CognitionConfig, shipped_rules
 from vlaprobe.configs.monitor import DEFAULT_DEBOUNCE
-from vlaprobe.symbols import Articulation, Goal, Scene, Vocabulary, build_vocabulary
+from vlaprobe.envs.spatial_scene import SPATIAL_GOAL, SPATIAL_SCENE
+from vlaprobe.symbols import Vocabulary, build_vocabulary
 
 STEPS, WARMUP, MAX_FLIPS = 2000, 100, 12
-SCENE = Scene(
-    pickupable=(
-        "akita_black_bowl_1",
-        "akita_black_bowl_2",
-        "cookies_1",
-        "glazed_rim_porcelain_ramekin_1",
-        "plate_1",
-    ),
-    fixtures=("wooden_cabinet_1", "flat_stove_1"),
-    containers=tuple(f"wooden_cabinet_1_{p}_region" for p in ("top", "middle", "bottom")),
-    container_articulation=(Articulation(-0.14, True),) * 3,
-    on_off=("flat_stove_1",),
-    on_off_articulation=(Articulation(0.5, False),),
-)
-GOAL = Goal("akita_black_bowl_1", "plate_1")
+SCENE = SPATIAL_SCENE
+GOAL = SPATIAL_GOAL
 
 
 def truth(vocab: Vocabulary, seed: int = 0) -> np.ndarray:

@@ -30,25 +30,13 @@ from fastapi import FastAPI, WebSocket
 from fastapi.staticfiles import StaticFiles
 from PIL import Image
 
+from vlaprobe.envs.spatial_scene import SPATIAL_SCENE
 from vlaprobe.live import protocol as P
-from vlaprobe.symbols import Articulation, Scene, build_vocabulary
+from vlaprobe.symbols import build_vocabulary
 
 UI = Path(__file__).resolve().parents[1] / "src" / "vlaprobe" / "live" / "ui"
 STEPS, HZ, MAX_FLIPS = 300, 10.0, 12
-SCENE = Scene(
-    pickupable=(
-        "akita_black_bowl_1",
-        "akita_black_bowl_2",
-        "cookies_1",
-        "glazed_rim_porcelain_ramekin_1",
-        "plate_1",
-    ),
-    fixtures=("wooden_cabinet_1", "flat_stove_1"),
-    containers=tuple(f"wooden_cabinet_1_{p}_region" for p in ("top", "middle", "bottom")),
-    container_articulation=(Articulation(-0.14, True),) * 3,
-    on_off=("flat_stove_1",),
-    on_off_articulation=(Articulation(0.5, False),),
-)
+SCENE = SPATIAL_SCENE
 ARGS = [
     "--headless",
     "--no-sandbox",

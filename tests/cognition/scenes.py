@@ -6,25 +6,13 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from vlaprobe.symbols import Articulation, Goal, Scene, build_vocabulary
+from vlaprobe.envs.spatial_scene import SPATIAL_GOAL, SPATIAL_SCENE
+from vlaprobe.symbols import build_vocabulary
 
-DRAWERS = tuple(f"wooden_cabinet_1_{p}_region" for p in ("top", "middle", "bottom"))
-SCENE = Scene(
-    pickupable=(
-        "akita_black_bowl_1",
-        "akita_black_bowl_2",
-        "cookies_1",
-        "glazed_rim_porcelain_ramekin_1",
-        "plate_1",
-    ),
-    fixtures=("wooden_cabinet_1", "flat_stove_1"),
-    containers=DRAWERS,
-    container_articulation=(Articulation(-0.14, True),) * 3,
-    on_off=("flat_stove_1",),
-    on_off_articulation=(Articulation(0.5, False),),
-)
+SCENE = SPATIAL_SCENE
+DRAWERS = SCENE.containers
 VOCAB = build_vocabulary(SCENE)
-GOAL = Goal("akita_black_bowl_1", "plate_1")
+GOAL = SPATIAL_GOAL
 BOWL, PLATE = GOAL.pick, GOAL.place
 BOWL2, COOKIES, RAMEKIN = "akita_black_bowl_2", "cookies_1", "glazed_rim_porcelain_ramekin_1"
 TOP = DRAWERS[0]

@@ -1,0 +1,36 @@
+"""The scene all 10 LIBERO-spatial tasks share, as :class:`~vlaprobe.envs.libero.LiberoTaskEnv` reads it from
+the simulator, for code that needs the vocabulary without one (benchmarks, tests, clients).
+
+A LIBERO-marked test checks it against every task's simulator, so it cannot drift from what collection records.
+"""
+
+from __future__ import annotations
+
+from vlaprobe.symbols import Articulation, Goal, Scene
+
+_DRAWERS = tuple(f"wooden_cabinet_1_{p}_region" for p in ("top", "middle", "bottom"))
+
+SPATIAL_SCENE = Scene(
+    pickupable=(
+        "akita_black_bowl_1",
+        "akita_black_bowl_2",
+        "cookies_1",
+        "glazed_rim_porcelain_ramekin_1",
+        "plate_1",
+    ),
+    fixtures=("wooden_cabinet_1", "flat_stove_1"),
+    containers=_DRAWERS,
+    container_articulation=(Articulation(threshold=-0.14, below=True),) * 3,
+    surfaces=("wooden_cabinet_1_top_side", "flat_stove_1_cook_region"),
+    on_off=("flat_stove_1",),
+    on_off_articulation=(Articulation(threshold=0.5, below=False),),
+    region_parent={
+        **dict.fromkeys(_DRAWERS, "wooden_cabinet_1"),
+        "wooden_cabinet_1_top_side": "wooden_cabinet_1",
+        "flat_stove_1_cook_region": "flat_stove_1",
+    },
+)
+"""Tabletop objects, drawers, stove and their articulation thresholds (224 object + 12 action atoms)."""
+
+SPATIAL_GOAL = Goal(pick="akita_black_bowl_1", place="plate_1")
+"""Every LIBERO-spatial task's goal: the black bowl on the plate."""
