@@ -306,3 +306,45 @@ def test_monitor_out_is_checked_first(tmp_path: Path, capsys: pytest.CaptureFixt
     a_file.write_text("x")
     argv = ["monitor", "--store", str(tmp_path / "none"), "--out", str(a_file)]
     assert f"--out {a_file} is a file, not a folder" in one_line_error(capsys, argv)  # not "no store"
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["model-info", "--policy.seed", "-1"], "--policy.seed must be between 0"),
+        (["model-info", "--policy.seed", str(2**70)], "--policy.seed must be between 0"),
+        (["serve", "--seed", "-1"], "--seed must be between 0"),
+        (["serve", "--seed", str(2**70)], "--seed must be between 0"),
+        (
+            ["serve", "--recordings", "/proc/vlaprobe-test"],
+            "--recordings /proc/vlaprobe-test: cannot write in /proc",
+        ),
+        (["collect", "--tasks", "0", "99", "--out", "OUT"], "--tasks [99] do not exist"),
+    ],
+)
+def test_seeds_recordings_and_tasks_are_checked_first(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    argv: list[str],
+    message: str,
+) -> None:
+    from vlaprobe.policies import factory
+
+    def no_model(*args: object) -> None:
+        raise AssertionError("the options should be refused before any model is built")
+
+    monkeypatch.setattr(factory, "make_policy", no_model)
+    monkeypatch.setattr("vlaprobe.policies.openvla.commands.make_policy", no_model)
+    if argv[0] == "serve":
+        argv = [*argv, "--probes", str(tmp_path / "probes")]  # none there: the options fail first
+    err = one_line_error(capsys, [str(tmp_path / "out") if a == "OUT" else a for a in argv])
+    assert message in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    err = one_line_error(capsys, ["serve", "--probes", str(tmp_path / "none"), "--recordings", str(a_file)])
+    assert f"--recordings {a_file} is a file, not a folder" in err

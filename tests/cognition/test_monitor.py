@@ -11,11 +11,15 @@ import torch
 from tests.cognition.scenes import APPROACH, BOWL2, CARRY, COOKIES, PLACED, PLATE, VOCAB, arrays
 
 from vlaprobe.cli import main as cli_main
-from vlaprobe.cognition.monitor import MONITOR_FILE, monitor, render_section, report_section
+from vlaprobe.cognition.monitor import MONITOR_FILE, monitor, report_section
 from vlaprobe.collection.store import EpisodeInfo
 from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.configs.monitor import MonitorConfig
+from vlaprobe.configs.report import ReportConfig
+from vlaprobe.configs.train import ProbeConfig, TrainConfig
+from vlaprobe.probes import synthetic_data, train_on_data
 from vlaprobe.probes.probeset import FORMAT, FORMAT_VERSION, ProbeSet
+from vlaprobe.reports import write_report
 
 SETTLING = frozenset({f"should-move-towards({PLATE})"})
 STEPS = [APPROACH] * 6 + [CARRY] * 6 + [SETTLING] * 2 + [PLACED] * 6
@@ -140,15 +144,28 @@ def test_cli_prints_the_figures_as_json(
     assert set(out["probes"]["goal_detection"]) == {"precision", "recall", "mean_delay_steps"}
 
 
-def test_the_report_section_renders_every_rule(run: tuple[Path, Path], tmp_path: Path) -> None:
+def test_the_report_shows_the_monitor_section(run: tuple[Path, Path], tmp_path: Path) -> None:
+    """The section as the report renders it: a probe folder holding monitor.json gets the cognition section."""
     store, probes = run
-    result = monitor(MonitorConfig(store=store, probes=probes, out=tmp_path))
-    html = render_section(result)
+    result = monitor(MonitorConfig(store=store, probes=probes, out=tmp_path / "monitor"))
+    data = synthetic_data(
+        num_tasks=2, episodes_per_task=3, steps_per_episode=10, num_layers=2, hidden_size=8, num_object=6,
+        num_action=2, seed=0,
+    )  # fmt: skip
+    fast = TrainConfig(
+        bootstrap=5, auprc_bootstrap=0, shuffled_permutations=1, probe=ProbeConfig(min_updates=5)
+    )
+    report_probes = train_on_data(data, fast, tmp_path / "probes")
+    assert report_section(report_probes) is None  # no monitor.json: no section
+    (report_probes / MONITOR_FILE).write_bytes((tmp_path / "monitor" / MONITOR_FILE).read_bytes())
+    section = report_section(report_probes)  # what the report's section provider finds in a probe folder
+    assert section is not None and section.id == "cognition" and section.data["steps"] == result.steps
+
+    page = write_report(ReportConfig(probes=report_probes, dpi=20)).read_text()
+    start = page.index("<h2 id='cognition'>Cognition: beliefs, rules and subgoals</h2>")
+    html = page[start : page.index("<h2 id=", start + 1)]
     assert html.count("<table>") == 3 and all(rule in html for rule in result.truth.violations)
-    assert render_section(json.loads((tmp_path / MONITOR_FILE).read_text())) == html
-    section = report_section(tmp_path)  # what the report's section provider finds in a probe folder
-    assert section.id == "cognition" and section.data["steps"] == result.steps
-    assert report_section(tmp_path / "elsewhere") is None
+    assert f"({result.steps} steps)" in html and "held-out test" in html
 
 
 def test_bad_input_is_a_one_line_error(

@@ -139,8 +139,35 @@ def test_stop_pause_resume_drop(tmp_path: Path) -> None:
         ws.send_text('{"type": "resume"}')
         ws.send_text('{"type": "stop"}')
         msgs = receive_until(ws, "episode_end")
+        listed = c.get("/api/episodes").json()
     assert msgs[-1]["stopped"] and msgs[-1]["steps"] < 30
+    assert [(e["success"], e["stopped"]) for e in listed] == [(False, True)]
     assert not [m for m in msgs if m["type"] == "error"]
+
+
+def test_pause_is_announced_to_every_client_and_to_late_joiners(tmp_path: Path) -> None:
+    with (
+        TestClient(fake_app(tmp_path, step_seconds=0.02)) as c,
+        c.websocket_connect("/ws") as a,
+        c.websocket_connect("/ws") as b,
+    ):
+        a.receive_text()
+        b.receive_text()
+        a.send_text(start(init=FAIL_INIT, max_steps=200))
+        episode = receive_until(b, "step")[-1]["episode_id"]
+        a.send_text('{"type": "pause"}')
+        assert receive_until(b, "status")[-1] == {"type": "status", "episode_id": episode, "paused": True}
+        assert receive_until(a, "status")[-1]["paused"] is True
+        with c.websocket_connect("/ws") as late:
+            hello = json.loads(late.receive_text())
+            assert hello["running"] == {"episode_id": episode, "paused": True}
+        b.send_text('{"type": "resume"}')
+        assert receive_until(a, "status")[-1] == {"type": "status", "episode_id": episode, "paused": False}
+        assert receive_until(b, "status")[-1]["paused"] is False
+        with c.websocket_connect("/ws") as late:
+            assert json.loads(late.receive_text())["running"]["paused"] is False
+        a.send_text('{"type": "stop"}')
+        receive_until(b, "episode_end")
 
 
 def test_join_mid_episode_gets_history_first(tmp_path: Path) -> None:

@@ -274,3 +274,18 @@ def run_browser(
     finally:
         shutil.rmtree(profile, ignore_errors=True)
     return run
+
+
+if __name__ == "__main__":
+    # The README's screenshot, made with trained probes: against a running `vlaprobe serve` (defaults:
+    # runs/default/probes), `python -m tests.web.browser http://127.0.0.1:6006 OUT` runs the test's scenario
+    # (a 60-step expert episode of task 0) and writes live-view.png and timeline.png to OUT; docs/img/live-view.png
+    # is OUT/live-view.png.
+    import sys
+
+    if len(sys.argv) != 3:
+        sys.exit("usage: python -m tests.web.browser BASE_URL OUT_DIR")
+    seen = run_browser(sys.argv[1].rstrip("/"), Path(sys.argv[2]), max_steps=60)
+    if seen.console_errors:
+        sys.exit(f"console errors: {seen.console_errors}")
+    print(f"{seen.distinct_frames} frames, steps checked {seen.checked_steps}; screenshots in {sys.argv[2]}")

@@ -2,13 +2,12 @@
 chromium, driven by Playwright. The UI starts a task, streams frames, marks a flip, ends the episode, scrubs the
 timeline (mouse, keyboard, raster click) and replays the recording; every step it shows is compared with the
 server's record. Then the server restarts and the page must reconnect by itself and list the recording again.
-Screenshots go to test-output/browser/; live-view.png is also the README's docs/img/live-view.png (written when
-missing, refreshed with VLAPROBE_UPDATE_SCREENSHOT=1).
+Screenshots go to test-output/browser/ (random probes: noisier than trained ones, so the README's
+docs/img/live-view.png is made with trained probes by `python -m tests.web.browser`, see docs/web.md).
 """
 
 from __future__ import annotations
 
-import os
 import shutil
 import socket
 import subprocess
@@ -166,8 +165,3 @@ def test_live_episode_timeline_replay_and_reconnect_in_chromium(server: Serve) -
     assert not run.console_errors, run.console_errors
     for name in ("live-view.png", "timeline.png"):
         assert (OUT / name).stat().st_size > 10_000, name
-    # The README's screenshot: written when missing, or refreshed on request (not on every run: no churn).
-    readme_image = REPO / "docs" / "img" / "live-view.png"
-    if not readme_image.exists() or os.environ.get("VLAPROBE_UPDATE_SCREENSHOT") == "1":
-        readme_image.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(OUT / "live-view.png", readme_image)

@@ -11,7 +11,7 @@ import { Connection, type SocketLike } from "./lib/connection";
 import { DEFAULT_FADE_STEPS } from "./lib/flips";
 import { frameKey } from "./lib/imageCache";
 import { type SliderState, onStepsChanged, seek } from "./lib/slider";
-import type { Store } from "./lib/store";
+import { type Store, isPaused } from "./lib/store";
 import { type ClientMessage, type EpisodeListItem, parseServerMessage } from "./messages";
 
 export function App({ store }: { store: Store }) {
@@ -109,6 +109,7 @@ export function App({ store }: { store: Store }) {
   const streamEpisode = useCallback((id: string) => send({ type: "replay", episode_id: id, hz: null }), [send]);
 
   const running = !!snap.live && !snap.live.end;
+  const paused = isPaused(snap);
   const reviewing = !!episode && (!!snap.replay || !!episode.end);
   const step = episode?.steps[index];
   const following = !snap.replay && running && view.follow;
@@ -116,7 +117,7 @@ export function App({ store }: { store: Store }) {
   if (following) src = snap.frame;
   else if (episode && step) src = store.images.get(frameKey(episode.id, step.t)) ?? frameUrl(episode.id, step.t);
   const caption = step
-    ? `${episode?.start.instruction} · ${step.status}${episode?.end ? ` · ${episode.end.success ? "success" : episode.end.stopped ? "stopped" : "failed"}` : ""}`
+    ? `${episode?.start.instruction} · ${step.status}${episode?.end ? ` · ${episode.end.success ? "success" : episode.end.stopped ? "stopped" : "failed"}` : ""}${paused && !snap.replay ? " · paused" : ""}`
     : episode
       ? `${episode.start.instruction} · starting…`
       : "no episode yet: pick a task and start";
@@ -128,6 +129,7 @@ export function App({ store }: { store: Store }) {
         connection={snap.connection}
         retryInMs={snap.retryInMs}
         running={running}
+        paused={paused}
         send={send}
       />
       {snap.errors.length > 0 && (
@@ -140,7 +142,7 @@ export function App({ store }: { store: Store }) {
       )}
       {snap.replay && (
         <div className="banner">
-          Viewing {snap.replay.start.source} episode {snap.replay.id}{" "}
+          Viewing the {snap.replay.start.source === "store" ? "stored" : "recorded"} episode {snap.replay.id}{" "}
           <button data-testid="back-to-live" onClick={() => store.closeReplay()}>
             back to live
           </button>

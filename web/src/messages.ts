@@ -12,8 +12,9 @@ export type EpisodeStart = Tagged<P.EpisodeStart>;
 export type Step = Tagged<P.Step>;
 export type History = Omit<Tagged<P.History>, "start" | "steps"> & { start: EpisodeStart; steps: Step[] };
 export type EpisodeEnd = Tagged<P.EpisodeEnd>;
+export type Status = Tagged<P.Status>;
 export type ErrorMessage = Tagged<P.ErrorMessage>;
-export type ServerMessage = Hello | EpisodeStart | Step | History | EpisodeEnd | ErrorMessage;
+export type ServerMessage = Hello | EpisodeStart | Step | History | EpisodeEnd | Status | ErrorMessage;
 
 export type StartCommand = Tagged<P.StartCommand>;
 export type ClientMessage =
@@ -30,7 +31,7 @@ export type EpisodeEvent = P.Event;
 export type EpisodeListItem = P.EpisodeListItem;
 export type EpisodeRecord = { start: EpisodeStart; steps: Step[]; end: EpisodeEnd | null };
 
-const SERVER_TYPES = new Set(["hello", "episode_start", "step", "history", "episode_end", "error"]);
+const SERVER_TYPES = new Set(["hello", "episode_start", "step", "history", "episode_end", "status", "error"]);
 
 /** Parses one WebSocket text frame; null when it is not a server message this UI knows. */
 export function parseServerMessage(text: string): ServerMessage | null {

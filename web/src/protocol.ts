@@ -7,7 +7,7 @@ export interface Protocol {
   client: StartCommand | StopCommand | PauseCommand | ResumeCommand | DropCommand | ReplayCommand;
   episode: EpisodeRecord;
   episodes: EpisodeListItem[];
-  server: Hello | EpisodeStart | Step | History | EpisodeEnd | ErrorMessage;
+  server: Hello | EpisodeStart | Step | History | EpisodeEnd | Status | ErrorMessage;
 }
 /**
  * This interface was referenced by `Protocol`'s JSON-Schema
@@ -266,6 +266,7 @@ export interface EpisodeListItem {
   instruction: string;
   source: "live" | "store";
   steps: number;
+  stopped?: boolean;
   success: boolean | null;
   task: number;
 }
@@ -309,6 +310,7 @@ export interface HeadInts {
  */
 export interface Running {
   episode_id: string;
+  paused?: boolean;
 }
 /**
  * This interface was referenced by `Protocol`'s JSON-Schema
@@ -329,6 +331,17 @@ export interface History {
   start: EpisodeStart;
   steps: Step[];
   type?: "history";
+}
+/**
+ * Sent to every client when the running episode is paused or resumed (late joiners read hello.running).
+ *
+ * This interface was referenced by `Protocol`'s JSON-Schema
+ * via the `definition` "Status".
+ */
+export interface Status {
+  episode_id: string;
+  paused: boolean;
+  type?: "status";
 }
 /**
  * This interface was referenced by `Protocol`'s JSON-Schema

@@ -16,7 +16,7 @@ import math
 from collections import Counter
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -26,6 +26,10 @@ from vlaprobe.configs.monitor import MonitorConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import write_atomic
 from vlaprobe.symbols.world import Goal
+
+if TYPE_CHECKING:
+    from vlaprobe.collection.store import ActivationStore
+    from vlaprobe.reports.sections import Section
 
 MONITOR_FILE = "monitor.json"
 EVALUATION_FILE = "evaluation.json"
@@ -135,7 +139,9 @@ def _run(cog: Cognition, obj: np.ndarray, act: np.ndarray) -> _Run:
     return _Run(steps, beliefs)
 
 
-def _episodes(cfg: MonitorConfig, store: Any, probes_meta: dict[str, Any]) -> tuple[list[str], bool]:
+def _episodes(
+    cfg: MonitorConfig, store: ActivationStore, probes_meta: dict[str, Any]
+) -> tuple[list[str], bool]:
     keys = [e.key for e in store.episodes()]
     if cfg.all_episodes:
         return keys, False
@@ -264,23 +270,10 @@ SECTION_ID, SECTION_TITLE, SECTION_TEMPLATE = (
 )
 
 
-def render_section(result: MonitorResult | dict[str, Any]) -> str:
-    """The report's cognition section as a self-contained HTML fragment (``templates/monitor_section.html``)."""
-    import jinja2
-
-    data = result.to_json() if isinstance(result, MonitorResult) else result
-    env = jinja2.Environment(
-        loader=jinja2.PackageLoader("vlaprobe.cognition", "templates"),
-        autoescape=jinja2.select_autoescape(["html"]),
-        undefined=jinja2.StrictUndefined,
-    )
-    body = env.get_template(SECTION_TEMPLATE).render(data=data)
-    return f'<section id="{SECTION_ID}"><h2>{SECTION_TITLE}</h2>\n{body}</section>\n'
-
-
-def report_section(probes: Path) -> Any:
+def report_section(probes: Path) -> Section | None:
     """Section provider for the report (``vlaprobe.reports.sections``): the monitor's figures when
-    ``monitor.json`` is in the probe folder, else None."""
+    ``monitor.json`` is in the probe folder, else None. The report renders it (``templates/monitor_section.html``
+    through the page's template loader); this is the only way the section is rendered."""
     path = Path(probes) / MONITOR_FILE
     if not path.is_file():
         return None

@@ -61,16 +61,7 @@ class CollectResult:
 
 
 def _validate(cfg: CollectConfig) -> None:
-    if cfg.episodes_per_task < 1:
-        raise VlaprobeError(f"--episodes-per-task must be at least 1, got {cfg.episodes_per_task}")
-    if cfg.workers < 1:
-        raise VlaprobeError(f"--workers must be at least 1, got {cfg.workers}")
-    if cfg.max_tries_per_task is not None and cfg.max_tries_per_task < 1:
-        raise VlaprobeError(f"--max-tries-per-task must be at least 1, got {cfg.max_tries_per_task}")
-    if cfg.env.max_steps < 1:
-        raise VlaprobeError(f"--env.max-steps must be at least 1, got {cfg.env.max_steps}")
-    if cfg.post_success_steps < 0:
-        raise VlaprobeError(f"--post-success-steps must be 0 or more, got {cfg.post_success_steps}")
+    """What collection needs beyond the range checks of ``check_collect``."""
     if not cfg.env.render:
         raise VlaprobeError("collect needs the camera image for the model; drop --env.no-render")
     if len(set(cfg.tasks)) != len(cfg.tasks):
@@ -156,8 +147,8 @@ class _Progress:
 
 def collect(cfg: CollectConfig, make_worker: MakeWorker = Worker) -> CollectResult:
     """Collect episodes into ``cfg.out`` (see the module docstring). ``make_worker`` builds each worker."""
-    _validate(cfg)
     check_collect(cfg)
+    _validate(cfg)
     start = time.perf_counter()
     out = Path(cfg.out)
     check_output_folder(out)  # a file or an unwritable path fails here, not after the model has loaded

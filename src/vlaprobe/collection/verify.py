@@ -154,7 +154,9 @@ def check_store(path: str | Path, read: bool = False) -> list[Damage]:
 
     Checks each folder under ``episodes/``: its metadata, the presence and shapes of its arrays against the
     episode's length and the store's metadata, and that every chunk file of ``hidden`` (of every array for
-    stores that write all chunks) exists. ``read`` also decodes every array.
+    stores that write all chunks) exists. ``read`` also decodes every array: in older stores (no
+    ``all_chunks_written``) it is the only check that finds a truncated chunk of an array other than
+    ``hidden``, and a missing one there is not found at all (zarr reads it as the fill value).
     """
     path = Path(path)
     meta = read_meta(path)

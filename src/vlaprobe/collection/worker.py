@@ -13,9 +13,9 @@ import os
 import random
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from vlaprobe.envs.base import TaskEnv
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.policies.base import VLAPolicy
 from vlaprobe.rollout import Driver, DriverName, make_driver, run_episode
+
+if TYPE_CHECKING:
+    from vlaprobe.symbols import Goal, Scene, WorldState
 
 
 @dataclass
@@ -172,7 +175,7 @@ class Worker:
         _seed_everything(seed)
         driver = self._make_driver(self.cfg.driver, env, self.policy, seed)
         rows: dict[str, list[Any]] = {k: [] for k in _STEP_ARRAYS}
-        world: list[Any] = []
+        world: list[WorldState] = []
         label_s = 0.0
         success_step: int | None = None
         start = time.perf_counter()
@@ -240,13 +243,13 @@ _STEP_ARRAYS: dict[str, Any] = {
 """The per-step arrays of an episode and their stored dtypes (besides ``world/*``)."""
 
 
-def world_arrays(states: list[Any]) -> dict[str, np.ndarray]:
+def world_arrays(states: list[WorldState]) -> dict[str, np.ndarray]:
     """Stack per-step :class:`~vlaprobe.symbols.WorldState` snapshots into ``world/<field>`` arrays (steps first)."""
     fields = [f.name for f in dataclasses.fields(states[0])]
     return {f"world/{name}": np.stack([np.asarray(getattr(s, name)) for s in states]) for name in fields}
 
 
-def world_states(arrays: Any) -> list[Any]:
+def world_states(arrays: Mapping[str, np.ndarray]) -> list[WorldState]:
     """The per-step :class:`~vlaprobe.symbols.WorldState` snapshots stored with an episode."""
     from vlaprobe.symbols import WorldState
 
@@ -259,7 +262,7 @@ def world_states(arrays: Any) -> list[Any]:
     ]
 
 
-def stored_scene(attrs: dict[str, Any]) -> tuple[Any, Any]:
+def stored_scene(attrs: Mapping[str, Any]) -> tuple[Scene, Goal]:
     """(Scene, Goal) of an episode from its attributes, to rebuild its :class:`~vlaprobe.symbols.Labeler`."""
     from vlaprobe.symbols import Articulation, Goal, Scene
 

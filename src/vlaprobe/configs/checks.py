@@ -2,7 +2,7 @@
 
 One function per command's config; ``prefix`` is the flag prefix under which that config's fields appear
 (``vlaprobe run`` nests them: ``--train.probe.lr``, ``--collect.env.max-steps``). The policy's flags have no
-prefix anywhere (``--seed``, ``--model``).
+prefix except in ``model-info`` (``--seed``, ``--model``).
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ if TYPE_CHECKING:
     from vlaprobe.configs.policy import PolicyConfig
     from vlaprobe.configs.report import ReportConfig
     from vlaprobe.configs.run import RunConfig
+    from vlaprobe.configs.serve import ServeConfig
     from vlaprobe.configs.train import TrainConfig
 
 MAX_SEED = 2**32 - 8
@@ -95,11 +96,25 @@ def check_env(env: EnvConfig, prefix: str = "env.") -> None:
     _at_least(env.settle_steps, 0, _flag(prefix, "settle_steps"))
 
 
-def check_policy(policy: PolicyConfig) -> None:
-    """The policy's flags (unprefixed in every command)."""
+def check_policy(policy: PolicyConfig, prefix: str = "") -> None:
+    """The policy's flags (unprefixed everywhere but ``model-info``: ``--policy.seed``)."""
     if not policy.model:
-        raise VlaprobeError("--model needs 'tiny' or an OpenVLA checkpoint folder, got ''")
-    check_seed(policy.seed, "--seed")
+        raise VlaprobeError(f"{_flag(prefix, 'model')} needs 'tiny' or an OpenVLA checkpoint folder, got ''")
+    check_seed(policy.seed, _flag(prefix, "seed"))
+
+
+def check_tasks(tasks: tuple[int, ...], suite: str, flag: str) -> list[int]:
+    """Every selected task exists in ``suite`` (read from LIBERO's task list: no assets, no model); the suite's
+    task indices."""
+    from vlaprobe.envs.libero import suite_tasks
+
+    known = [i for i, _ in suite_tasks(suite)]
+    unknown = [t for t in tasks if t not in known]
+    if unknown:
+        raise VlaprobeError(
+            f"{flag} {unknown} do not exist; {suite} has tasks 0-{max(known)} (see `vlaprobe tasks`)"
+        )
+    return known
 
 
 def check_collect(cfg: CollectConfig, prefix: str = "") -> None:
@@ -110,15 +125,22 @@ def check_collect(cfg: CollectConfig, prefix: str = "") -> None:
     _at_least(cfg.max_tries_per_task, 1, f("max_tries_per_task"))
     _at_least(cfg.post_success_steps, 0, f("post_success_steps"))
     _at_least(cfg.threads, 1, f("threads"), " (or leave it out for the default)")
-    bad_tasks = [t for t in cfg.tasks if t < 0]
-    if bad_tasks:
-        raise VlaprobeError(
-            f"{f('tasks')} takes task indices 0, 1, ... (see `vlaprobe tasks`); got {bad_tasks}"
-        )
+    check_tasks(cfg.tasks, cfg.env.suite, f("tasks"))
     if not (math.isfinite(cfg.ray_gpus_per_worker) and cfg.ray_gpus_per_worker >= 0):
         raise VlaprobeError(f"{f('ray_gpus_per_worker')} must be 0 or more, got {cfg.ray_gpus_per_worker}")
     check_env(cfg.env, prefix + "env.")
     check_policy(cfg.policy)
+
+
+def check_serve(cfg: ServeConfig) -> None:
+    """The options of ``vlaprobe serve`` checked before the model loads (the server checks its own limits)."""
+    from vlaprobe.files import check_output_folder
+
+    check_seed(cfg.seed, "--seed")
+    _at_least(cfg.post_success_steps, 0, "--post-success-steps")
+    check_env(cfg.env)
+    if cfg.recordings is not None:  # a folder the user named (the default sits beside the probes)
+        check_output_folder(cfg.recordings, "--recordings")
 
 
 def check_report(cfg: ReportConfig, prefix: str = "") -> None:
@@ -138,15 +160,9 @@ def check_run(cfg: RunConfig) -> None:
             f"--collect.episodes-per-task {c.episodes_per_task} leaves no task with 2 episodes, so nothing can be "
             "held out to test the probes; use --collect.episodes-per-task 2 or more"
         )
-    from vlaprobe.envs.libero import suite_tasks  # the task list needs no assets
+    from vlaprobe.envs.libero import suite_tasks  # check_collect has checked the selected tasks
 
-    known = [i for i, _ in suite_tasks(c.env.suite)]
-    unknown = [t for t in c.tasks if t not in known]
-    if unknown:
-        raise VlaprobeError(
-            f"--collect.tasks {unknown} do not exist; {c.env.suite} has tasks 0-{max(known)} (see `vlaprobe tasks`)"
-        )
-    episodes = len(c.tasks or known) * c.episodes_per_task
+    episodes = len(c.tasks or suite_tasks(c.env.suite)) * c.episodes_per_task
     if cfg.train.split.folds > episodes and not c.keep_failed:
         raise VlaprobeError(
             f"--train.split.folds {cfg.train.split.folds} needs at least that many episodes; this run keeps "

@@ -112,7 +112,11 @@ def create_app(engine: Engine, limits: Limits) -> FastAPI:
     def hello_text() -> str:
         run = session.running
         return engine.hello.model_copy(
-            update={"running": None if run is None else P.Running(episode_id=run.episode_id)}
+            update={
+                "running": None
+                if run is None
+                else P.Running(episode_id=run.episode_id, paused=bool(run.control.paused))
+            }
         ).model_dump_json()
 
     def error(message: str) -> str:
@@ -163,10 +167,13 @@ def create_app(engine: Engine, limits: Limits) -> FastAPI:
                 raise VlaprobeError(f"no episode is running; {cmd.type} needs one (send start first)")
             if isinstance(cmd, P.StopCommand):
                 run.control.stop()
-            elif isinstance(cmd, P.PauseCommand):
-                run.control.pause()
-            elif isinstance(cmd, P.ResumeCommand):
-                run.control.resume()
+            elif isinstance(cmd, P.PauseCommand | P.ResumeCommand):
+                if isinstance(cmd, P.PauseCommand):
+                    run.control.pause()
+                else:
+                    run.control.resume()
+                status = P.Status(episode_id=run.episode_id, paused=bool(run.control.paused))
+                hub.broadcast(status.model_dump_json())
             elif isinstance(cmd, P.DropCommand):
                 if run.source != "live":
                     raise VlaprobeError("drop perturbs the simulator; it works in live episodes only")

@@ -60,6 +60,8 @@ class ProbeInfo(_Model):
 
 class Running(_Model):
     episode_id: str
+    paused: bool = False
+    """The episode is paused (a pause command; resume or stop ends it)."""
 
 
 class SubgoalInfo(_Model):
@@ -212,6 +214,14 @@ class EpisodeEnd(_Model):
     summary: EpisodeSummary
 
 
+class Status(_Model):
+    """Sent to every client when the running episode is paused or resumed (late joiners read hello.running)."""
+
+    type: Literal["status"] = "status"
+    episode_id: str
+    paused: bool
+
+
 class ErrorMessage(_Model):
     type: Literal["error"] = "error"
     message: str
@@ -266,6 +276,8 @@ class EpisodeListItem(_Model):
     steps: int
     success: bool | None
     """null: the episode is running, or the server stopped before it ended."""
+    stopped: bool = False
+    """A client stopped it before its end (success is then false)."""
     created: str
     """ISO 8601 UTC."""
 
@@ -279,7 +291,7 @@ class EpisodeRecord(_Model):
 
 
 ServerMessage = Annotated[
-    Hello | EpisodeStart | Step | History | EpisodeEnd | ErrorMessage, Field(discriminator="type")
+    Hello | EpisodeStart | Step | History | EpisodeEnd | Status | ErrorMessage, Field(discriminator="type")
 ]
 ClientMessage = Annotated[
     StartCommand | StopCommand | PauseCommand | ResumeCommand | DropCommand | ReplayCommand,

@@ -85,6 +85,7 @@ class Recordings:
                     driver=start.driver,
                     steps=steps,
                     success=None if end is None else end.success,
+                    stopped=end is not None and end.stopped,
                     created=_created(start.episode_id),
                 )
             )

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from vlaprobe import __version__
+from vlaprobe.configs.checks import check_serve
 from vlaprobe.configs.serve import ServeConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.live import protocol as P
@@ -218,6 +219,7 @@ def main(cfg: ServeConfig) -> int:
     """Load everything, print the address, serve until interrupted."""
     import uvicorn
 
+    check_serve(cfg)
     token = resolve_token(cfg)
     limits = limits_of(cfg, token)
     probes = load_probes(cfg)

@@ -24,7 +24,8 @@ class Section:
     title: str
     """The section's heading."""
     template: str
-    """Template file name under ``vlaprobe/reports/templates/``; it sees ``section`` and ``data``."""
+    """Template file name under ``vlaprobe/reports/templates/`` or ``vlaprobe/cognition/templates/`` (the
+    page's loader searches both); it sees ``section`` and ``data``."""
     data: Any
     """What the template renders (a dataclass, typically read from a JSON file of the run)."""
 

@@ -43,6 +43,9 @@ of its collision-geom bounding box.
   (opening below ``GRIP_MIN_OPENING`` = 2 mm; a bowl's wall holds them ~4.5 mm apart). At most one object is
   grasped: the one already held, else among those both fingers touch the one whose box centre is nearest the
   grip point. Stateful (the object held at the previous step): :meth:`Labeler.reset` at every episode start.
+  **So every grasped row has a finger in contact with ``a`` or within ``SLIP_GAP`` of it**, not always a
+  MuJoCo contact (issue #10 asked for that): without the slip rule the 13 rows would split one grasp in two
+  (a flicker). ``tests/envs/test_action_labels.py`` checks exactly this bound.
 - ``should-move-towards(a)``: exactly one target while the goal ``on(pick, place)`` does not hold: the object
   to pick until it is grasped; then the place target, which **stays** the target after a release until the
   released object comes to rest (``resting``: touching the table or another object, moving slower than

@@ -111,7 +111,10 @@ export function Beliefs({ episode, index, fadeSteps }: Props) {
           </span>
         )}
       </div>
-      <div className="legend muted">▲ turned true · ▼ turned false · ● true · ○ false · ✓ agrees with the world · ✗ differs</div>
+      <div className="legend muted">
+        ▲ turned true · ▼ turned false (marked for {fadeSteps} steps, fading) · ● true · ○ false · ✓ agrees with the
+        world · ✗ differs
+      </div>
       <div className="groups">
         {groups.map((g) => {
           const rows = g.atoms.filter((a) => {

@@ -8,23 +8,23 @@ interface Props {
   connection: ConnectionState;
   retryInMs: number | null;
   running: boolean;
+  /** The server's word on pause (a status message or hello), so every client shows the same state. */
+  paused: boolean;
   send: (msg: ClientMessage) => void;
 }
 
-export function ControlBar({ hello, connection, retryInMs, running, send }: Props) {
+export function ControlBar({ hello, connection, retryInMs, running, paused, send }: Props) {
   const [task, setTask] = useState(0);
   const [init, setInit] = useState<string>("random");
   const [driver, setDriver] = useState<string>("");
   const [maxSteps, setMaxSteps] = useState<string>("");
   const [dropSteps, setDropSteps] = useState<string>("");
-  const [paused, setPaused] = useState(false);
   const drivers = hello?.drivers ?? [];
   const chosenDriver = (driver || hello?.default_driver || "expert") as "expert" | "policy";
   const open = connection === "open";
 
   const start = () => {
     const steps = parseInt(maxSteps, 10);
-    setPaused(false);
     send({
       type: "start",
       task,
@@ -33,10 +33,7 @@ export function ControlBar({ hello, connection, retryInMs, running, send }: Prop
       max_steps: Number.isFinite(steps) && steps > 0 ? steps : null,
     });
   };
-  const togglePause = () => {
-    send({ type: paused ? "resume" : "pause" });
-    setPaused(!paused);
-  };
+  const togglePause = () => send({ type: paused ? "resume" : "pause" });
   const drop = () => {
     const steps = parseInt(dropSteps, 10);
     send({ type: "drop", steps: Number.isFinite(steps) && steps > 0 ? steps : null });

@@ -29,7 +29,7 @@ export function Episodes({ episodes, error, selected, onOpen, onStream, onRefres
           <li key={e.id} data-testid="episode" data-id={e.id} className={e.id === selected ? "selected" : ""}>
             <div>
               <span className="tag">{e.source}</span> task {e.task} · init {e.init} · {e.driver} · {e.steps} steps ·{" "}
-              {e.success === null ? "…" : e.success ? "✓ success" : "✗ failed"}
+              {e.success === null ? "…" : e.success ? "✓ success" : e.stopped ? "■ stopped" : "✗ failed"}
             </div>
             <div className="muted instr">{e.instruction}</div>
             <button data-testid="open-episode" onClick={() => onOpen(e.id, false)}>

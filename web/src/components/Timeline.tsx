@@ -1,6 +1,6 @@
 /**
  * The slider over every step (mouse and keyboard) and the atoms x steps raster beside it: upper half of a
- * cell = predicted, lower half = truth, disagreements outlined in red with a dot; the slider's step is
+ * cell = predicted, lower half = truth, a red bar where they differ; the slider's step is
  * marked; clicking a cell jumps to its step.
  */
 import { useEffect, useMemo, useRef } from "react";
@@ -110,8 +110,9 @@ export function Timeline({ episode, index, onSeek, playing, onPlay }: Props) {
       </div>
       {episode.end && <Summary end={episode.end} />}
       <div className="legend muted">
-        rows: the {rows.length} of {episode.atoms.length} atoms true at some step · top half: predicted · bottom
-        half: world · red bar: disagreement · orange frame: shown step · click a cell to jump there (arrow keys move)
+        rows: the {rows.length} of {episode.atoms.length} atoms true at some step · top half, blue: predicted true ·
+        bottom half, grey: true in the world · red bar: they differ · orange frame: shown step · click a cell to
+        jump there (arrow keys move)
       </div>
       <div className="raster-wrap">
         <div

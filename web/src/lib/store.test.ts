@@ -1,6 +1,6 @@
 import { expect, test } from "vitest";
 import { ImageCache } from "./imageCache";
-import { Store } from "./store";
+import { Store, isPaused } from "./store";
 import { fakeStart, fakeStep } from "./fixtures";
 
 test("a live episode: steps appended, images cached without being kept on steps, end recorded", () => {
@@ -42,4 +42,45 @@ test("history rebuilds a joined episode; replay is shown beside it; errors are b
   expect(store.getSnapshot().live?.id).toBe("h");
   for (let i = 0; i < 9; i++) store.handle({ type: "error", message: `e${i}` });
   expect(store.getSnapshot().errors).toEqual(["e4", "e5", "e6", "e7", "e8"]);
+});
+
+test("pause is the server's word: hello.running and status messages, cleared by the episode's end", () => {
+  const store = new Store();
+  const hello = (paused: boolean) => ({
+    type: "hello" as const,
+    version: "0",
+    tasks: [],
+    model_id: "m",
+    probes: {
+      layers: { object: 1, action: 1 },
+      threshold: 0.5,
+      atoms: { object: [], action: [] },
+      probed: { object: [], action: [] },
+    },
+    image_hz: 5,
+    num_init_states: 1,
+    drivers: ["expert" as const],
+    default_driver: "expert" as const,
+    running: { episode_id: "p", paused },
+  });
+  store.handle(hello(true));
+  expect(isPaused(store.getSnapshot())).toBe(false); // no episode shown yet
+  store.handle({ type: "history", episode_id: "p", start: fakeStart("p"), steps: [fakeStep("p", 0, [0, 0], [0])] });
+  expect(isPaused(store.getSnapshot())).toBe(true); // a late joiner learns it from hello
+  store.handle({ type: "status", episode_id: "p", paused: false });
+  expect(isPaused(store.getSnapshot())).toBe(false);
+  store.handle({ type: "status", episode_id: "p", paused: true });
+  expect(isPaused(store.getSnapshot())).toBe(true);
+  store.handle({ type: "status", episode_id: "other", paused: true });
+  expect(isPaused(store.getSnapshot())).toBe(false); // another episode's pause
+  store.handle({ type: "status", episode_id: "p", paused: true });
+  store.handle({
+    type: "episode_end",
+    episode_id: "p",
+    success: false,
+    steps: 1,
+    stopped: true,
+    summary: { violations: {}, goal_step_predicted: null, goal_step_truth: null, agreement: 1 },
+  });
+  expect(isPaused(store.getSnapshot())).toBe(false); // stopped while paused
 });

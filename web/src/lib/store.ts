@@ -17,6 +17,8 @@ export interface Snapshot {
   live: EpisodeData | null;
   /** A recorded/stored episode loaded for replay; shown instead of `live` while set. */
   replay: EpisodeData | null;
+  /** Id of the episode the server last said is paused (hello.running or a status message); null: none. */
+  pausedEpisode: string | null;
   /** Data URL of the newest live frame. */
   frame: string | null;
   fps: number;
@@ -27,6 +29,12 @@ export interface Snapshot {
 
 const MAX_ERRORS = 5;
 
+/** Whether the running live episode is paused, as the server last said (the same for every client). */
+export function isPaused(snap: Snapshot): boolean {
+  const { live, pausedEpisode } = snap;
+  return live !== null && !live.end && live.id === pausedEpisode;
+}
+
 export class Store {
   readonly images: ImageCache;
   private readonly fpsMeter = new FpsMeter();
@@ -36,6 +44,7 @@ export class Store {
     hello: null,
     live: null,
     replay: null,
+    pausedEpisode: null,
     frame: null,
     fps: 0,
     errors: [],
@@ -77,7 +86,10 @@ export class Store {
   handle(msg: ServerMessage): void {
     switch (msg.type) {
       case "hello":
-        this.update({ hello: msg });
+        this.update({ hello: msg, pausedEpisode: msg.running?.paused ? msg.running.episode_id : null });
+        return;
+      case "status":
+        this.update({ pausedEpisode: msg.paused ? msg.episode_id : null });
         return;
       case "episode_start":
         this.update({ live: newEpisode(msg), replay: null, frame: null });

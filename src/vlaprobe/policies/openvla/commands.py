@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vlaprobe.configs.checks import check_seed
+from vlaprobe.configs.checks import check_policy, check_seed
 from vlaprobe.configs.policy import ModelInfoConfig, SaveTinyConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import check_output_folder
@@ -17,6 +17,7 @@ from vlaprobe.policies.factory import make_policy
 
 def model_info(cfg: ModelInfoConfig) -> int:
     """Print the policy's description (and optionally one timed step) as JSON."""
+    check_policy(cfg.policy, "policy.")
     policy = make_policy(cfg.policy)
     info = policy.describe()
     if cfg.step:
