@@ -215,3 +215,18 @@ def random_probes(
         "heads": heads,
     }
     return ProbeSet(meta, tensors).save(folder)
+
+
+def real_engine(cfg: ServeConfig) -> Engine:
+    """The real engine (trained probes, cognition, recorder, store replays) over the fake simulator and model."""
+    from vlaprobe.live.serve import build_engine, load_probes
+
+    return build_engine(
+        cfg,
+        load_probes(cfg),
+        policy=FakePolicy(SimpleNamespace(pooling="last_prompt", seed=0)),
+        make_env=lambda task: FakeEnv(task, None),
+        tasks=fake_tasks(None),
+        num_init_states=fakes.NUM_INITS,
+        make_driver=fake_driver,
+    )

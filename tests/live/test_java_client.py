@@ -7,14 +7,12 @@ import shutil
 import subprocess
 import urllib.request
 from pathlib import Path
-from types import SimpleNamespace
 
 import pytest
-from tests.live.fakes import SUCCESS_INIT, FakeEnv, FakePolicy, LiveServer, fake_driver, fake_tasks, fakes
+from tests.live.fakes import SUCCESS_INIT, LiveServer, real_engine
 
 from vlaprobe.configs.serve import ServeConfig
 from vlaprobe.live.app import Limits, create_app
-from vlaprobe.live.serve import build_engine, load_probes
 
 CLIENT = Path(__file__).resolve().parents[2] / "clients" / "diarc" / "src"
 pytestmark = [
@@ -37,15 +35,7 @@ def test_java_client_follows_an_episode_and_keeps_the_beliefs(
     classes: Path, fake_run: Path, tmp_path: Path
 ) -> None:
     cfg = ServeConfig(probes=fake_run / "probes", recordings=tmp_path / "live")
-    engine = build_engine(
-        cfg,
-        load_probes(cfg),
-        policy=FakePolicy(SimpleNamespace(pooling="last_prompt", seed=0)),
-        make_env=lambda task: FakeEnv(task, None),
-        tasks=fake_tasks(None),
-        num_init_states=fakes.NUM_INITS,
-        make_driver=fake_driver,
-    )
+    engine = real_engine(cfg)
     app = create_app(engine, Limits(token="tok"))
     with LiveServer(app) as srv:
         args = ["java", "-cp", str(classes), "vlaprobe.diarc.LiveClient", srv.url, "--token", "tok"]

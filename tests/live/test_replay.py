@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from tests.live.fakes import SUCCESS_INIT, FakeEnv, FakePolicy, fake_driver, fake_tasks, fakes
+from tests.live.fakes import SUCCESS_INIT, real_engine
 
 from vlaprobe.cognition.monitor import monitor
 from vlaprobe.cognition.readout import ProbeReadout
@@ -18,22 +17,13 @@ from vlaprobe.configs.monitor import MonitorConfig
 from vlaprobe.configs.serve import ServeConfig
 from vlaprobe.live import protocol as P
 from vlaprobe.live.app import Limits, create_app
-from vlaprobe.live.serve import build_engine, load_probes
 
 pytestmark = pytest.mark.timeout(120)
 
 
 def real_app(run: Path, tmp: Path, **kw: object) -> object:
     cfg = ServeConfig(probes=run / "probes", store=run / "activations", recordings=tmp / "live", **kw)
-    engine = build_engine(
-        cfg,
-        load_probes(cfg),
-        policy=FakePolicy(SimpleNamespace(pooling="last_prompt", seed=0)),
-        make_env=lambda task: FakeEnv(task, None),
-        tasks=fake_tasks(None),
-        num_init_states=fakes.NUM_INITS,
-        make_driver=fake_driver,
-    )
+    engine = real_engine(cfg)
     return create_app(engine, Limits(image_hz=1000.0, replay_hz=500.0))
 
 
