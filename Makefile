@@ -16,9 +16,10 @@ run: setup
 	.venv/bin/vlaprobe run
 
 # The web UI's unit tests (vitest) run too where Node is installed (setup ran `npm ci` then).
+# vitest first, so that pytest's summary closes the output.
 test: setup
-	.venv/bin/pytest -q
 	@if command -v npm >/dev/null; then cd web && npm test --silent; else echo "make test: npm missing, web unit tests skipped"; fi
+	.venv/bin/pytest -q
 
 # Rebuild the web UI into src/vlaprobe/live/ui when web/ changed (setup does this too).
 ui:
