@@ -145,6 +145,20 @@ def test_stop_pause_resume_drop(tmp_path: Path) -> None:
     assert not [m for m in msgs if m["type"] == "error"]
 
 
+def test_drop_is_announced_step_by_step(tmp_path: Path) -> None:
+    """Each perturbed step says so, with the drop's steps still to come (the UI's drop indicator)."""
+    with TestClient(fake_app(tmp_path, step_seconds=0.02)) as c, c.websocket_connect("/ws") as ws:
+        ws.receive_text()
+        ws.send_text(start(init=FAIL_INIT, max_steps=20))
+        receive_until(ws, "step")
+        ws.send_text('{"type": "drop", "steps": 3}')
+        msgs = receive_until(ws, "episode_end")
+    steps = [m for m in msgs if m["type"] == "step"]
+    dropped = [(m["perturbed"], m["drop_left"]) for m in steps if m["perturbed"]]
+    assert dropped == [(True, 2), (True, 1), (True, 0)]
+    assert all(m["truth_progress"] is not None and m["truth_subgoals"] for m in steps)
+
+
 def test_pause_is_announced_to_every_client_and_to_late_joiners(tmp_path: Path) -> None:
     with (
         TestClient(fake_app(tmp_path, step_seconds=0.02)) as c,

@@ -45,6 +45,11 @@ def test_store_replay_equals_monitor(fake_run: Path, tmp_path: Path) -> None:
             key = item["id"].removeprefix("store-")
             record = P.EpisodeRecord.model_validate(c.get(f"/api/episodes/{item['id']}").json())
             assert record.start.source == "store" and len(record.steps) == item["steps"]
+            assert record.start.store_episode == item["id"] and record.start.goal_objects
+            assert all(s.truth_subgoals and s.truth_progress is not None for s in record.steps)
+            assert record.end.summary.success_step == (
+                next((s.t for s in record.steps if "successfully" in s.status), None)
+            )
             rows = {h: store.layer(readout.layers[h], [key]) for h in ("object", "action")}
             expected = readout.assign_steps(rows)
             for h in ("object", "action"):
@@ -74,6 +79,7 @@ def test_replay_streams_over_the_websocket(fake_run: Path, tmp_path: Path) -> No
         assert "no episode is running" in json.loads(ws.receive_text())["message"]
     steps = [m for m in msgs if m["type"] == "step"]
     assert msgs[0]["source"] == "store" and len(steps) == len(rest["steps"])
+    assert msgs[0]["store_episode"] == eid != msgs[0]["episode_id"]  # the re-run's frames are the store's
     # The episode's not-probed atoms are the probes' dropped ones: null probabilities in every step.
     for h in ("object", "action"):
         assert msgs[0]["probed"][h] == hello["probes"]["probed"][h]

@@ -91,6 +91,7 @@ export interface EpisodeSummary {
   agreement: number;
   goal_step_predicted: number | null;
   goal_step_truth: number | null;
+  success_step?: number | null;
   violations: {
     [k: string]: number | undefined;
   };
@@ -103,11 +104,13 @@ export interface EpisodeStart {
   atoms: HeadNames;
   driver: string;
   episode_id: string;
+  goal_objects?: string[];
   init: number;
   instruction: string;
   max_steps: number;
   probed: HeadFlags;
   source: "live" | "recorded" | "store";
+  store_episode?: string | null;
   subgoals: SubgoalInfo[];
   task: number;
   type?: "episode_start";
@@ -145,10 +148,12 @@ export interface SubgoalInfo {
 export interface Step {
   action: number[] | null;
   beliefs: BeliefDelta;
+  drop_left?: number;
   episode_id: string;
   events: Event[];
   flips: Flips;
   image?: string | null;
+  perturbed?: boolean;
   predicted: Prediction;
   predicted_action: number[] | null;
   progress: number;
@@ -160,6 +165,8 @@ export interface Step {
   timings: Timings;
   truth: HeadBits | null;
   truth_events?: Event[];
+  truth_progress?: number | null;
+  truth_subgoals?: SubgoalState[];
   type?: "step";
   violations: Violation[];
 }

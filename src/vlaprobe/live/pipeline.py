@@ -17,6 +17,8 @@ import numpy as np
 from vlaprobe.live import protocol as P
 
 HEADS = ("object", "action")
+STORE_PREFIX = "store-"
+"""Ids of a store's episodes are ``store-<key>`` (``StoreEpisodes.PREFIX``)."""
 
 
 @dataclass
@@ -116,6 +118,10 @@ def _events(items: Sequence[Any]) -> list[P.Event]:
     return [P.Event(kind=e.kind, t=int(e.t), message=str(e.message)) for e in items]
 
 
+def _subgoals(items: Sequence[Any]) -> list[P.SubgoalState]:
+    return [P.SubgoalState(index=int(g.index), name=str(g.name), status=str(g.status)) for g in items]
+
+
 def status_line(t: int, success_step: int | None, last: bool) -> str:
     """The paper's status strings (``last``: the final step of the budget)."""
     if success_step is not None:
@@ -162,6 +168,10 @@ class StepBuilder:
             atoms=P.HeadNames(object=list(s.atoms["object"]), action=list(s.atoms["action"])),
             probed=P.HeadFlags(**{h: [bool(x) for x in probed[h]] for h in HEADS}),
             subgoals=[P.SubgoalInfo(index=int(g.index), name=str(g.name)) for g in subgoals],
+            goal_objects=[
+                str(o) for o in (getattr(s.goal, "pick", None), getattr(s.goal, "place", None)) if o
+            ],
+            store_episode=f"{STORE_PREFIX}{s.key}" if s.source == "store" and s.key else None,
         )
 
     def _cognition(self) -> CognitionLike:
@@ -180,7 +190,7 @@ class StepBuilder:
         cog = self._cognition()
         c = cog.step(values["object"], values["action"])
         t2 = time.perf_counter()
-        truth, truth_events = None, []
+        truth, truth_events, ct = None, [], None
         if rec.object_atoms is not None and rec.action_atoms is not None:
             truth = {
                 "object": np.asarray(rec.object_atoms, bool),
@@ -225,12 +235,13 @@ class StepBuilder:
             ),
             beliefs=P.BeliefDelta(asserted=list(c.asserted), retracted=list(c.retracted)),
             violations=_violations(c.violations),
-            subgoals=[
-                P.SubgoalState(index=int(g.index), name=str(g.name), status=str(g.status)) for g in c.subgoals
-            ],
+            subgoals=_subgoals(c.subgoals),
             progress=float(c.progress),
             events=_events(c.events),
             truth_events=truth_events,
+            truth_subgoals=[] if ct is None else _subgoals(ct.subgoals),
+            truth_progress=None if ct is None else float(ct.progress),
+            perturbed=bool(getattr(rec, "perturbed", False)),
             action=_floats(rec.action),
             predicted_action=_floats(rec.predicted_action),
             timings=P.Timings(
@@ -271,5 +282,6 @@ class StepBuilder:
                 goal_step_predicted=self.goal_step_predicted,
                 goal_step_truth=self.goal_step_truth,
                 agreement=round(agree / total, 4) if total else 1.0,
+                success_step=self.success_step,
             ),
         )

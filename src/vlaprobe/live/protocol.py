@@ -136,6 +136,8 @@ class EpisodeSummary(_Model):
     goal_step_truth: int | None
     agreement: float
     """Share of (step, probed atom) pairs where the prediction equals the truth (1.0 without truth)."""
+    success_step: int | None = None
+    """First step at which the task's own success check held (``steps`` also counts the rows after it)."""
 
 
 # -- server -> client -----------------------------------------------------------------------------
@@ -164,6 +166,10 @@ class EpisodeStart(_Model):
     atoms: HeadNames
     probed: HeadFlags
     subgoals: list[SubgoalInfo]
+    goal_objects: list[str] = Field(default_factory=list)
+    """The objects of the task's goal ``On(pick, place)``: the UI pins the atoms that mention them."""
+    store_episode: str | None = None
+    """Source "store": the stored episode this one re-runs (every frame at /api/episodes/{it}/frames/{t})."""
 
 
 class Step(_Model):
@@ -188,6 +194,14 @@ class Step(_Model):
     """Events of the cognition on the predictions."""
     truth_events: list[Event] = Field(default_factory=list)
     """Events of the same cognition on the ground-truth atoms (what really happened, e.g. a drop)."""
+    truth_subgoals: list[SubgoalState] = Field(default_factory=list)
+    """The subgoals as the same cognition sees them on the ground-truth atoms (empty without truth)."""
+    truth_progress: float | None = None
+    """Progress on the ground-truth atoms; null without truth."""
+    perturbed: bool = False
+    """A drop forced the gripper open in this step's action."""
+    drop_left: int = 0
+    """Steps of a requested drop still to come after this one."""
     action: list[float] | None
     """Executed action (7,); null on the terminal step."""
     predicted_action: list[float] | None

@@ -132,6 +132,7 @@ class Session:
             began = True
             for rec in source.records(run.control):
                 msg = builder.step(rec, getattr(rec, "timings", None))
+                msg.drop_left = int(getattr(run.control, "drop_left", 0))
                 jpeg = encode_jpeg(rec.model_image)
                 state = msg.model_dump_json(exclude={"image"})
                 if recorder is not None:

@@ -20,7 +20,7 @@ import numpy as np
 
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.live import protocol as P
-from vlaprobe.live.pipeline import EpisodeSpec
+from vlaprobe.live.pipeline import STORE_PREFIX, EpisodeSpec
 from vlaprobe.rollout import EpisodeControl, make_driver, run_episode
 
 MakeEnv = Callable[[int], Any]
@@ -142,7 +142,7 @@ class StoredStep:
 class StoreEpisodes:
     """The episodes of an activation store, listed and replayed through probes and cognition."""
 
-    PREFIX = "store-"
+    PREFIX = STORE_PREFIX
 
     def __init__(self, path: Path) -> None:
         from vlaprobe.collection.store import ActivationStore

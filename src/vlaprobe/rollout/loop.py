@@ -115,6 +115,11 @@ class EpisodeControl:
         return self._stop.is_set()
 
     @property
+    def drop_left(self) -> int:
+        """Steps of a requested drop not yet applied."""
+        return self._drop_steps
+
+    @property
     def paused(self) -> bool:
         return not self._running.is_set()
 
