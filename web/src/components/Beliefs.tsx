@@ -1,153 +1,147 @@
 /**
- * Predicted atoms at one step, grouped by predicate (object head, then action head). Just turned true: green
- * with an up arrow; just turned false: red with a down arrow; both fade over a few steps. Where truth is
- * streamed, each atom shows agree (✓) or disagree (✗), and the header the step's agreement in %.
+ * The beliefs at the shown step. Focused view (default): the task-relevant atoms (every action atom and the
+ * atoms that mention the task's objects) pinned on top, disagreements with the world first; filters for
+ * "disagrees with the world", "changed (predicted or world)" and "true"; atoms without a probe hidden until
+ * asked for. Off: every atom grouped by predicate (the paper's order).
  */
-import { memo, useMemo, useState } from "react";
-import { agreementPercent, atomAgreement, type Agreement } from "../lib/agreement";
+import { useMemo, useState } from "react";
+import { agreementPercent } from "../lib/agreement";
 import { groupByPredicate } from "../lib/atoms";
+import { beliefRows, episodeObjects } from "../lib/beliefRows";
 import type { EpisodeData } from "../lib/episode";
-import { type AtomState, type BeliefFilter, atomViewsAt, passesFilter } from "../lib/flips";
+import { type BeliefRow, type RowFilter, type RowOptions, focusedSections, passes } from "../lib/focus";
+import { BeliefRowView } from "./BeliefRow";
 
-const ICON: Record<AtomState, string> = { "turned-on": "▲", "turned-off": "▼", on: "●", off: "○" };
-const LABEL: Record<AtomState, string> = {
-  "turned-on": "turned true",
-  "turned-off": "turned false",
-  on: "true",
-  off: "false",
-};
+const FILTERS: [RowFilter, string][] = [
+  ["all", "all"],
+  ["disagree", "disagrees with the world"],
+  ["changed", "changed (predicted or world)"],
+  ["true", "predicted true"],
+];
 
-interface RowProps {
-  name: string;
-  state: AtomState;
-  fade: number;
-  agreement: Agreement;
-  probed: boolean;
-  prob: number | null;
+function fadeOf(row: BeliefRow, window: number): number {
+  return row.age < window ? 1 - row.age / window : 0;
 }
 
-const AtomRow = memo(function AtomRow({ name, state, fade, agreement, probed, prob }: RowProps) {
+function names(list: readonly string[], max = 6): string {
+  if (list.length === 0) return "none";
+  return list.length <= max ? list.join(", ") : `${list.slice(0, max).join(", ")} and ${list.length - max} more`;
+}
+
+function RowList({ rows, window, testid }: { rows: BeliefRow[]; window: number; testid: string }) {
   return (
-    <li
-      className={`atom ${state} ${agreement}${probed ? "" : " unprobed"}`}
-      data-testid="atom"
-      data-atom={name}
-      data-state={state}
-      data-agree={agreement}
-      style={{ "--fade": fade.toFixed(2) } as React.CSSProperties}
-      title={`${name}: ${LABEL[state]}${prob !== null ? ` (p=${prob.toFixed(2)})` : ""}`}
-    >
-      <span className="icon" aria-label={LABEL[state]}>
-        {ICON[state]}
-      </span>
-      <span className="name">{name}</span>
-      {!probed && <span className="tag">not probed</span>}
-      {agreement !== "unknown" && (
-        <span className="agree" aria-label={agreement}>
-          {agreement === "agree" ? "✓" : "✗ world differs"}
-        </span>
-      )}
-    </li>
+    <ul className="atom-list" data-testid={testid}>
+      {rows.map((r) => (
+        <BeliefRowView key={r.name} row={r} fade={fadeOf(r, window)} window={window} />
+      ))}
+    </ul>
   );
-});
-
-interface Props {
-  episode: EpisodeData;
-  index: number;
-  fadeSteps: number;
 }
 
-export function Beliefs({ episode, index, fadeSteps }: Props) {
-  const [filter, setFilter] = useState<BeliefFilter>("all");
+function Focused({ rows, opts }: { rows: BeliefRow[]; opts: RowOptions }) {
+  const s = focusedSections(rows, opts);
+  const pinnedTotal = rows.filter((r) => r.pinned).length;
+  return (
+    <>
+      <h3>
+        Task-relevant: {s.pinned.length} shown of {pinnedTotal} <span className="muted">(the task's objects and every action atom)</span>
+      </h3>
+      <RowList rows={s.pinned} window={opts.window} testid="pinned" />
+      <h3>Other atoms: {s.other.length} shown</h3>
+      <RowList rows={s.other} window={opts.window} testid="others" />
+    </>
+  );
+}
+
+function Grouped({ episode, rows, opts }: { episode: EpisodeData; rows: BeliefRow[]; opts: RowOptions }) {
   const groups = useMemo(() => groupByPredicate(episode.atoms), [episode.atoms]);
-  const predicted = episode.predicted[index];
-  const truth = episode.truth[index] ?? null;
+  return (
+    <div className="groups">
+      {groups.map((g) => {
+        const shown = g.atoms.map((a) => rows[a.index]).filter((r): r is BeliefRow => !!r && passes(r, opts));
+        if (!shown.length) return null;
+        const on = g.atoms.filter((a) => rows[a.index]?.value === 1).length;
+        return (
+          <div className="group" key={`${g.head}:${g.predicate}`} data-predicate={g.predicate}>
+            <h3>
+              {g.predicate} <span className="muted">{g.head} · {on}/{g.atoms.length} true</span>
+            </h3>
+            <RowList rows={shown} window={opts.window} testid="group" />
+          </div>
+        );
+      })}
+    </div>
+  );
+}
+
+function Options({ opts, set, focused, setFocused, unprobed }: { opts: RowOptions; set: (o: RowOptions) => void; focused: boolean; setFocused: (f: boolean) => void; unprobed: number }) {
+  return (
+    <div className="belief-options">
+      <label>
+        <input type="checkbox" data-testid="focused-toggle" checked={focused} onChange={(e) => setFocused(e.target.checked)} /> focused view
+      </label>
+      <fieldset className="filters">
+        <legend className="sr-only">show</legend>
+        {FILTERS.map(([f, label]) => (
+          <label key={f}>
+            <input type="radio" name="belief-filter" data-testid={`filter-${f}`} checked={opts.filter === f} onChange={() => set({ ...opts, filter: f })} />
+            {label}
+          </label>
+        ))}
+      </fieldset>
+      <label>
+        <input type="checkbox" data-testid="show-unprobed" checked={opts.showUnprobed} onChange={(e) => set({ ...opts, showUnprobed: e.target.checked })} /> show the {unprobed} atoms
+        without a probe
+      </label>
+    </div>
+  );
+}
+
+export function Beliefs({ episode, index, fadeSteps }: { episode: EpisodeData; index: number; fadeSteps: number }) {
+  const [opts, setOpts] = useState<RowOptions>({ filter: "all", showUnprobed: false, window: fadeSteps });
+  const [focused, setFocused] = useState(true);
+  const objects = useMemo(() => episodeObjects(episode), [episode]);
+  const rows = beliefRows(episode, index, fadeSteps, objects);
   const step = episode.steps[index];
-  if (!predicted || !step) {
+  const predicted = episode.predicted[index];
+  if (!step || !predicted) {
     return (
-      <section className="panel beliefs" aria-label="beliefs">
-        <h2>Beliefs</h2>
+      <section className="panel beliefs" aria-labelledby="beliefs-h" id="beliefs">
+        <h2 id="beliefs-h">Beliefs</h2>
         <p className="muted">waiting for the first step…</p>
       </section>
     );
   }
-  const views = atomViewsAt((j) => episode.predicted[j] ?? [], index, fadeSteps);
-  const agreement = atomAgreement(predicted, truth, episode.probed);
-  const percent = agreementPercent(predicted, truth, episode.probed);
-  const probs = [...step.predicted.object.probs, ...step.predicted.action.probs];
-  const disagreeing = agreement.filter((a) => a === "disagree").length;
-  const turnedOn = views.filter((v) => v.age === 0 && v.value === 1).length;
-  const turnedOff = views.filter((v) => v.age === 0 && v.value === 0).length;
-  const world = step.flips.truth;
-
+  const percent = agreementPercent(predicted, episode.truth[index] ?? null, episode.probed);
+  const wrong = rows.filter((r) => r.disagree);
+  const pinnedWrong = wrong.filter((r) => r.pinned).length;
+  const unprobed = rows.filter((r) => !r.probed).length;
+  const flips = step.flips;
   return (
-    <section className="panel beliefs" aria-label="beliefs">
+    <section className="panel beliefs" aria-labelledby="beliefs-h" id="beliefs">
       <div className="panel-head">
-        <h2>Beliefs</h2>
+        <h2 id="beliefs-h">Beliefs</h2>
         <span data-testid="agreement" className="agreement-total">
-          {percent === null ? "no truth streamed" : `agreement ${percent.toFixed(1)} % (${disagreeing} ✗)`}
+          {percent === null ? "no truth streamed" : `agreement ${percent.toFixed(1)} % (${wrong.length} ✗, ${pinnedWrong} task-relevant)`}
         </span>
-        <div className="filters" role="radiogroup" aria-label="filter">
-          {(["all", "true", "changed"] as const).map((f) => (
-            <label key={f}>
-              <input
-                type="radio"
-                name="belief-filter"
-                data-testid={`filter-${f}`}
-                checked={filter === f}
-                onChange={() => setFilter(f)}
-              />
-              {f}
-            </label>
-          ))}
-        </div>
       </div>
+      <Options opts={opts} set={setOpts} focused={focused} setFocused={setFocused} unprobed={unprobed} />
       <div className="flips" data-testid="flips">
-        step {step.t}: predicted ▲ {turnedOn} turned true, ▼ {turnedOff} turned false
+        step {step.t}: predicted ▲ {names(flips.predicted.on)} · ▼ {names(flips.predicted.off)}
         {step.truth && (
-          <span className="muted">
-            {" "}
-            · world ▲ {world.on.length} ▼ {world.off.length}
-          </span>
+          <>
+            <br />
+            <span data-testid="world-flips">
+              world ▲ {names(flips.truth.on)} · ▼ {names(flips.truth.off)}
+            </span>
+          </>
         )}
       </div>
-      <div className="legend muted">
-        ▲ turned true · ▼ turned false (marked for {fadeSteps} steps, fading) · ● true · ○ false · ✓ agrees with the
-        world · ✗ differs
+      <div className="legend">
+        predicted: ▲ turned true · ▼ turned false (marked {fadeSteps} steps, fading) · ● true · ○ false · bar: probe probability
+        · W● / W○ the world's value (W▲ W▼ just flipped) · ✓ agrees · ✗ differs
       </div>
-      <div className="groups">
-        {groups.map((g) => {
-          const rows = g.atoms.filter((a) => {
-            const v = views[a.index];
-            return v !== undefined && passesFilter(v, filter);
-          });
-          if (!rows.length) return null;
-          const on = g.atoms.filter((a) => views[a.index]?.value === 1).length;
-          return (
-            <div className="group" key={`${g.head}:${g.predicate}`} data-predicate={g.predicate}>
-              <h3>
-                {g.predicate} <span className="muted">{g.head} · {on}/{g.atoms.length} true</span>
-              </h3>
-              <ul>
-                {rows.map((a) => {
-                  const v = views[a.index];
-                  return v ? (
-                    <AtomRow
-                      key={a.name}
-                      name={a.name}
-                      state={v.state}
-                      fade={v.fade}
-                      agreement={agreement[a.index] ?? "unknown"}
-                      probed={a.probed}
-                      prob={probs[a.index] ?? null}
-                    />
-                  ) : null;
-                })}
-              </ul>
-            </div>
-          );
-        })}
-      </div>
+      {focused ? <Focused rows={rows} opts={opts} /> : <Grouped episode={episode} rows={rows} opts={opts} />}
     </section>
   );
 }

@@ -1,24 +1,27 @@
-/** Active violations (rule message, atoms, since), their history, the subgoals with progress, and the events. */
+/**
+ * The cognition at the shown step: active violations and their history; the subgoals and progress as the
+ * predictions see them beside the world's, with the drift between them; the events of both sides on one list.
+ */
 import type { EpisodeData } from "../lib/episode";
-import type { EpisodeEvent } from "../messages";
-import { eventsUntil, violationHistory } from "../lib/cognition";
+import type { Step, SubgoalState } from "../messages";
+import { type SidedEvent, type SubgoalDrift, mergedEvents, subgoalDrift } from "../lib/drift";
+import { violationHistory } from "../lib/cognition";
 
 const SUBGOAL_ICON: Record<string, string> = { pending: "○", active: "◐", done: "✓", regressed: "↺" };
+const SIDE_MARK = { predicted: "◆ predicted", world: "■ world" } as const;
 
-export function Cognition({ episode, index }: { episode: EpisodeData; index: number }) {
+function Violations({ episode, index }: { episode: EpisodeData; index: number }) {
   const step = episode.steps[index];
-  const spans = violationHistory(episode.steps, index);
-  const past = spans.filter((s) => s.until !== null).reverse();
-  const events = eventsUntil(episode.steps, index);
-  const worldEvents = eventsUntil(episode.steps, index, "truth");
-  const progress = step?.progress ?? 0;
+  const active = step?.violations ?? [];
+  const past = violationHistory(episode.steps, index)
+    .filter((s) => s.until !== null)
+    .reverse();
   return (
-    <section className="panel cognition" aria-label="cognition">
-      <h2>Cognition</h2>
-      <h3>Active violations ({step?.violations.length ?? 0})</h3>
+    <>
+      <h3>Active violations ({active.length})</h3>
       <ul data-testid="violations" className="violations">
-        {(step?.violations ?? []).length === 0 && <li className="muted">none</li>}
-        {(step?.violations ?? []).map((v) => (
+        {active.length === 0 && <li className="muted">none</li>}
+        {active.map((v) => (
           <li key={`${v.rule}|${v.atoms.join(",")}|${v.since}`} className="violation" data-rule={v.rule}>
             <span className="icon">⚠</span> <strong>{v.message}</strong>
             <div className="muted">
@@ -39,35 +42,91 @@ export function Cognition({ episode, index }: { episode: EpisodeData; index: num
           </ul>
         </details>
       )}
-      <h3>Subgoals</h3>
-      <div className="progress">
-        <progress data-testid="progress" max={1} value={progress} />
-        <span>{Math.round(progress * 100)} %</span>
-      </div>
-      <ol className="subgoals" data-testid="subgoals">
-        {(step?.subgoals ?? episode.start.subgoals.map((s) => ({ ...s, status: "pending" as const }))).map((s) => (
-          <li key={s.index} className={`subgoal ${s.status}`} data-status={s.status}>
-            <span className="icon">{SUBGOAL_ICON[s.status] ?? "?"}</span> {s.name} <span className="muted">{s.status}</span>
-          </li>
-        ))}
-      </ol>
-      <h3>Events (from the predictions)</h3>
-      <EventList events={events} testid="events" />
-      <h3>Events in the world (from the true atoms)</h3>
-      <EventList events={worldEvents} testid="world-events" />
-    </section>
+    </>
   );
 }
 
-function EventList({ events, testid }: { events: EpisodeEvent[]; testid: string }) {
+function Side({ title, subgoals, progress, done, testid }: { title: string; subgoals: SubgoalState[] | null; progress: number | null; done: (g: SubgoalState) => number | null; testid: string }) {
   return (
-    <ul className="events" data-testid={testid}>
+    <div className="side" data-testid={testid}>
+      <h4>{title}</h4>
+      {subgoals === null || progress === null ? (
+        <p className="muted">no world truth in this stream</p>
+      ) : (
+        <>
+          <div className="progress">
+            <progress data-testid={`${testid}-progress`} max={1} value={progress} aria-label={`${title} progress`} />
+            <span>{Math.round(progress * 100)} %</span>
+          </div>
+          <ol className="subgoals">
+            {subgoals.map((g) => (
+              <li key={g.index} className={`subgoal ${g.status}`} data-status={g.status}>
+                <span className="icon" aria-hidden="true">
+                  {SUBGOAL_ICON[g.status] ?? "?"}
+                </span>{" "}
+                {g.name} <span className="status">{g.status}{g.status === "done" ? ` (step ${done(g) ?? "?"})` : ""}</span>
+              </li>
+            ))}
+          </ol>
+        </>
+      )}
+    </div>
+  );
+}
+
+function Subgoals({ episode, index, step }: { episode: EpisodeData; index: number; step: Step | undefined }) {
+  const names = episode.start.subgoals;
+  const drift = subgoalDrift(names, episode.steps, index);
+  const byIndex = new Map<number, SubgoalDrift>(drift.map((d) => [d.index, d]));
+  const pending = names.map((s) => ({ ...s, status: "pending" as const }));
+  const hasWorld = !!step?.truth && (step.truth_subgoals?.length ?? 0) > 0;
+  const drifts = drift.filter((d) => d.text);
+  return (
+    <>
+      <h3>Subgoals: predicted vs world</h3>
+      <div className="compare" data-testid="subgoals">
+        <Side title="predicted" subgoals={step?.subgoals ?? pending} progress={step?.progress ?? 0} done={(g) => byIndex.get(g.index)?.predicted ?? null} testid="subgoals-predicted" />
+        <Side
+          title="world"
+          subgoals={hasWorld ? (step?.truth_subgoals ?? null) : null}
+          progress={hasWorld ? (step?.truth_progress ?? null) : null}
+          done={(g) => byIndex.get(g.index)?.world ?? null}
+          testid="subgoals-world"
+        />
+      </div>
+      {drifts.length > 0 && (
+        <ul className="drift" data-testid="drift">
+          {drifts.map((d) => (
+            <li key={d.index}>⚠ {d.text}</li>
+          ))}
+        </ul>
+      )}
+    </>
+  );
+}
+
+function Events({ events }: { events: SidedEvent[] }) {
+  return (
+    <ul className="events" data-testid="events">
       {events.length === 0 && <li className="muted">none yet</li>}
-      {events.slice(0, 50).map((e, i) => (
-        <li key={`${e.t}-${e.kind}-${i}`} className={`event ${e.kind}`}>
-          <span className="muted">t={e.t}</span> {e.kind.replace("_", " ")}: {e.message}
+      {events.slice(0, 60).map(({ side, event: e }, i) => (
+        <li key={`${e.t}-${side}-${e.kind}-${i}`} className={`event ${side}`} data-side={side}>
+          <span className={`side-tag ${side}`}>{SIDE_MARK[side]}</span> <span className="muted">t={e.t}</span> {e.kind.replace("_", " ")}: {e.message}
         </li>
       ))}
     </ul>
+  );
+}
+
+export function Cognition({ episode, index }: { episode: EpisodeData; index: number }) {
+  const step = episode.steps[index];
+  return (
+    <section className="panel cognition" aria-labelledby="cognition-h">
+      <h2 id="cognition-h">Cognition</h2>
+      <Subgoals episode={episode} index={index} step={step} />
+      <Violations episode={episode} index={index} />
+      <h3>Events (◆ from the predictions, ■ in the world)</h3>
+      <Events events={mergedEvents(episode.steps, index)} />
+    </section>
   );
 }

@@ -1,49 +1,53 @@
-/** Task picker, init state, driver, start/stop/pause/resume, the drop perturbation, and the connection state. */
-import { useState } from "react";
-import type { ClientMessage, Hello } from "../messages";
+/**
+ * Task picker, init state, driver, start/stop/pause/resume, the drop perturbation with its indicator, and the
+ * connection state. Each control is enabled only when it applies; after a reload the pickers show the
+ * running episode's task, init and driver.
+ */
+import { useEffect, useState } from "react";
 import type { ConnectionState } from "../lib/connection";
+import { dropState } from "../lib/status";
+import type { AppState } from "../useAppState";
 
-interface Props {
-  hello: Hello | null;
-  connection: ConnectionState;
-  retryInMs: number | null;
-  running: boolean;
-  /** The server's word on pause (a status message or hello), so every client shows the same state. */
-  paused: boolean;
-  send: (msg: ClientMessage) => void;
+interface Choice {
+  task: number;
+  init: string;
+  driver: string;
 }
 
-export function ControlBar({ hello, connection, retryInMs, running, paused, send }: Props) {
-  const [task, setTask] = useState(0);
-  const [init, setInit] = useState<string>("random");
-  const [driver, setDriver] = useState<string>("");
-  const [maxSteps, setMaxSteps] = useState<string>("");
-  const [dropSteps, setDropSteps] = useState<string>("");
-  const drivers = hello?.drivers ?? [];
-  const chosenDriver = (driver || hello?.default_driver || "expert") as "expert" | "policy";
-  const open = connection === "open";
+/** The pickers, following the running episode when one starts or is joined. */
+function useChoice(state: AppState): [Choice, (patch: Partial<Choice>) => void] {
+  const [choice, setChoice] = useState<Choice>({ task: 0, init: "random", driver: "" });
+  const live = state.snap.live;
+  const runningId = live && !live.end && live.start.source === "live" ? live.id : null;
+  useEffect(() => {
+    if (!runningId || !live) return;
+    setChoice({ task: live.start.task, init: String(live.start.init), driver: live.start.driver });
+  }, [runningId]); // only when another episode runs
+  return [choice, (patch) => setChoice((c) => ({ ...c, ...patch }))];
+}
 
-  const start = () => {
-    const steps = parseInt(maxSteps, 10);
-    send({
-      type: "start",
-      task,
-      init: init === "random" ? "random" : parseInt(init, 10),
-      driver: chosenDriver,
-      max_steps: Number.isFinite(steps) && steps > 0 ? steps : null,
-    });
-  };
-  const togglePause = () => send({ type: paused ? "resume" : "pause" });
-  const drop = () => {
-    const steps = parseInt(dropSteps, 10);
-    send({ type: "drop", steps: Number.isFinite(steps) && steps > 0 ? steps : null });
-  };
+function connectionText(connection: ConnectionState, retryInMs: number | null): string {
+  if (connection === "open") return "● connected";
+  if (connection === "connecting") return "◌ connecting…";
+  return `○ reconnecting in ${((retryInMs ?? 0) / 1000).toFixed(1)} s`;
+}
 
+/** Why Drop does nothing now ("" when it applies). */
+function dropBlocked(state: AppState): string {
+  const live = state.snap.live;
+  if (!state.running || !live) return "drop needs a running episode";
+  if (live.start.source === "store") return "drop perturbs the simulator; a store re-run has none";
+  return "";
+}
+
+function Pickers({ state, choice, set }: { state: AppState; choice: Choice; set: (p: Partial<Choice>) => void }) {
+  const hello = state.snap.hello;
+  const busy = state.running;
   return (
-    <header className="controls" aria-label="controls">
+    <>
       <label className="task">
         <span>Task</span>
-        <select data-testid="task-select" value={task} onChange={(e) => setTask(parseInt(e.target.value, 10))}>
+        <select data-testid="task-select" value={choice.task} disabled={busy} onChange={(e) => set({ task: parseInt(e.target.value, 10) })}>
           {(hello?.tasks ?? []).map((t) => (
             <option key={t.index} value={t.index}>
               {t.index}: {t.instruction}
@@ -53,9 +57,9 @@ export function ControlBar({ hello, connection, retryInMs, running, paused, send
       </label>
       <label>
         <span>Init</span>
-        <select data-testid="init-select" value={init} onChange={(e) => setInit(e.target.value)}>
+        <select data-testid="init-select" value={choice.init} disabled={busy} onChange={(e) => set({ init: e.target.value })}>
           <option value="random">random</option>
-          {Array.from({ length: hello?.num_init_states ?? 0 }, (_, i) => (
+          {Array.from({ length: Math.max(hello?.num_init_states ?? 0, choice.init === "random" ? 0 : Number(choice.init) + 1) }, (_, i) => (
             <option key={i} value={String(i)}>
               {i}
             </option>
@@ -64,57 +68,80 @@ export function ControlBar({ hello, connection, retryInMs, running, paused, send
       </label>
       <label>
         <span>Driver</span>
-        <select data-testid="driver-select" value={chosenDriver} onChange={(e) => setDriver(e.target.value)}>
-          {drivers.map((d) => (
+        <select
+          data-testid="driver-select"
+          value={choice.driver || hello?.default_driver || "expert"}
+          disabled={busy}
+          onChange={(e) => set({ driver: e.target.value })}
+        >
+          {(hello?.drivers ?? []).map((d) => (
             <option key={d} value={d}>
               {d}
             </option>
           ))}
         </select>
       </label>
+    </>
+  );
+}
+
+export function ControlBar({ state }: { state: AppState }) {
+  const { snap, running, paused, send } = state;
+  const [choice, set] = useChoice(state);
+  const [maxSteps, setMaxSteps] = useState("");
+  const [dropSteps, setDropSteps] = useState("");
+  const hello = snap.hello;
+  const open = snap.connection === "open";
+  const blocked = dropBlocked(state);
+  const live = snap.live;
+  const drop = live && !snap.replay ? dropState(live, live.steps.length - 1, state.dropRequested) : null;
+  const start = () => {
+    const steps = parseInt(maxSteps, 10);
+    send({
+      type: "start",
+      task: choice.task,
+      init: choice.init === "random" ? "random" : parseInt(choice.init, 10),
+      driver: (choice.driver || hello?.default_driver || "expert") as "expert" | "policy",
+      max_steps: Number.isFinite(steps) && steps > 0 ? steps : null,
+    });
+  };
+  const sendDrop = () => {
+    const steps = parseInt(dropSteps, 10);
+    send({ type: "drop", steps: Number.isFinite(steps) && steps > 0 ? steps : null });
+  };
+  return (
+    <header className="controls" aria-label="controls">
+      <Pickers state={state} choice={choice} set={set} />
       <label>
         <span>Max steps</span>
-        <input
-          className="num"
-          type="number"
-          min={1}
-          placeholder="server"
-          value={maxSteps}
-          onChange={(e) => setMaxSteps(e.target.value)}
-        />
+        <input className="num" type="number" min={1} placeholder="server" value={maxSteps} disabled={running} onChange={(e) => setMaxSteps(e.target.value)} />
       </label>
       <div className="buttons">
-        <button data-testid="start" disabled={!open || !hello} onClick={start}>
+        <button data-testid="start" disabled={!open || !hello || running} onClick={start} title={running ? "an episode is running: stop it first" : "start the episode"}>
           ▶ Start
         </button>
         <button data-testid="stop" disabled={!open || !running} onClick={() => send({ type: "stop" })}>
           ■ Stop
         </button>
-        <button data-testid="pause" disabled={!open || !running} onClick={togglePause}>
+        <button data-testid="pause" disabled={!open || !running} onClick={() => send({ type: paused ? "resume" : "pause" })}>
           {paused ? "▶ Resume" : "❚❚ Pause"}
         </button>
-        <button data-testid="drop" disabled={!open || !running} onClick={drop} title="force the gripper open">
+        <button data-testid="drop" disabled={!open || blocked !== ""} onClick={sendDrop} title={blocked || "force the gripper open"}>
           ↓ Drop
         </button>
-        <input
-          className="num"
-          type="number"
-          min={1}
-          max={100}
-          placeholder="steps"
-          aria-label="drop steps"
-          value={dropSteps}
-          onChange={(e) => setDropSteps(e.target.value)}
-        />
+        <input className="num" type="number" min={1} max={100} placeholder="steps" aria-label="drop steps" value={dropSteps} disabled={blocked !== ""} onChange={(e) => setDropSteps(e.target.value)} />
       </div>
       {hello && (
-        <span className="model muted" data-testid="model" title="hidden states the object / action probes read">
+        <span className="model" data-testid="model" title="hidden states the object / action probes read">
           {hello.model_id} · layers {hello.probes.layers.object}/{hello.probes.layers.action}
         </span>
       )}
-      <span className={`connection ${connection}`} data-testid="connection" data-state={connection}>
-        {connection === "open" ? "● connected" : connection === "connecting" ? "◌ connecting…" : `○ reconnecting in ${((retryInMs ?? 0) / 1000).toFixed(1)} s`}
+      <span className={`connection ${snap.connection}`} data-testid="connection" data-state={snap.connection}>
+        {connectionText(snap.connection, snap.retryInMs)}
       </span>
+      <div className="drop-line" aria-live="polite" data-testid="drop-indicator" data-active={drop?.active ? "1" : "0"} data-left={drop?.left ?? 0}>
+        {drop?.text || (running && blocked ? `↓ ${blocked}` : "")}
+      </div>
     </header>
   );
 }

@@ -1,13 +1,18 @@
 /**
- * The slider over every step (mouse and keyboard) and the atoms x steps raster beside it: upper half of a
- * cell = predicted, lower half = truth, a red bar where they differ; the slider's step is
- * marked; clicking a cell jumps to its step.
+ * The timeline: a slider over every step (also while the episode runs: scrub back, then "back to live"), and
+ * the atoms x steps raster with marker lanes (drop, violations, goal predicted and world, events), a step axis,
+ * the task-relevant rows first, and zoom (the raster pans by scrolling). Clicking a cell jumps to its step.
  */
-import { useEffect, useMemo, useRef } from "react";
+import { useEffect, useMemo, useRef, useState } from "react";
+import { episodeObjects } from "../lib/beliefRows";
 import { type EpisodeData, buildRaster } from "../lib/episode";
-import type { EpisodeEnd } from "../messages";
-import { HAS_TRUTH, PRED, TRUTH, type RasterLayout, cellAtPoint } from "../lib/raster";
+import { timelineRows } from "../lib/focus";
+import { MARKER_LANES, MARKER_STYLE, markersOf } from "../lib/markers";
+import { stepAtX } from "../lib/raster";
+import { HEADER_H, LABEL_W, ROW_H, drawCells, drawLabels, prepare } from "../lib/rasterDraw";
 import { stepForKey } from "../lib/slider";
+import { endWord, stepsPhrase } from "../lib/status";
+import type { EpisodeEnd } from "../messages";
 
 interface Props {
   episode: EpisodeData;
@@ -15,68 +20,145 @@ interface Props {
   onSeek: (index: number) => void;
   playing: boolean;
   onPlay: (playing: boolean) => void;
+  /** The episode is streaming now. */
+  live: boolean;
+  following: boolean;
+  onBackToLive: () => void;
 }
 
-const LABEL_WIDTH = 190;
-const CELL_H = 10;
+const ZOOMS = [1, 2, 4, 8, 16];
 
-export function Timeline({ episode, index, onSeek, playing, onPlay }: Props) {
-  const n = episode.steps.length;
-  const raster = useMemo(() => buildRaster(episode), [episode, n]);
-  const rows = useMemo(() => raster.activeRows(), [raster]);
-  const canvas = useRef<HTMLCanvasElement>(null);
-  const layout = useMemo<RasterLayout>(() => {
-    const width = Math.max(300, Math.min(900, n * 3));
-    return { left: LABEL_WIDTH, top: 0, cellWidth: width / Math.max(1, n), cellHeight: CELL_H, rows, numSteps: n };
-  }, [rows, n]);
+/** Pixels per step: "fit" fills the visible width (at least 1, at most 8). */
+function cellWidth(zoom: number | "fit", n: number, visible: number): number {
+  if (zoom !== "fit") return zoom;
+  return Math.max(1, Math.min(8, Math.floor((visible / Math.max(1, n)) * 4) / 4));
+}
 
+function useVisibleWidth(ref: React.RefObject<HTMLDivElement | null>): number {
+  const [width, setWidth] = useState(700);
   useEffect(() => {
-    const c = canvas.current;
-    const ctx = c?.getContext("2d");
-    if (!c || !ctx) return;
-    const w = layout.left + layout.cellWidth * n;
-    const h = Math.max(CELL_H, rows.length * CELL_H);
-    const dpr = window.devicePixelRatio || 1;
-    c.width = Math.ceil(w * dpr);
-    c.height = Math.ceil(h * dpr);
-    c.style.width = `${w}px`;
-    c.style.height = `${h}px`;
-    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
-    ctx.clearRect(0, 0, w, h);
-    ctx.font = "9px ui-monospace, monospace";
-    ctx.textBaseline = "middle";
-    const cw = layout.cellWidth;
-    rows.forEach((atom, r) => {
-      const y = r * CELL_H;
-      ctx.fillStyle = r % 2 ? "#f4f5f7" : "#ffffff";
-      ctx.fillRect(0, y, w, CELL_H);
-      ctx.fillStyle = "#333";
-      ctx.fillText(episode.atoms[atom]?.name ?? "", 2, y + CELL_H / 2, LABEL_WIDTH - 4);
-      for (let t = 0; t < n; t++) {
-        const code = raster.get(atom, t);
-        const x = layout.left + t * cw;
-        if (code & PRED) {
-          ctx.fillStyle = "#1f5fbf";
-          ctx.fillRect(x, y, cw, CELL_H / 2);
-        }
-        if (code & TRUTH) {
-          ctx.fillStyle = "#555";
-          ctx.fillRect(x, y + CELL_H / 2, cw, CELL_H / 2);
-        }
-        if (code & HAS_TRUTH && Boolean(code & PRED) !== Boolean(code & TRUTH)) {
-          ctx.fillStyle = "#d62728";
-          ctx.fillRect(x, y + CELL_H / 2 - 1, cw, 2);
-        }
-      }
-    });
-  }, [raster, rows, layout, n, episode.atoms]);
+    const el = ref.current;
+    if (!el) return;
+    const measure = () => setWidth(Math.max(200, el.clientWidth - LABEL_W - 4));
+    measure();
+    const obs = new ResizeObserver(measure);
+    obs.observe(el);
+    return () => obs.disconnect();
+  }, [ref]);
+  return width;
+}
 
-  const step = episode.steps[index];
-  const onCanvasClick = (e: React.MouseEvent<HTMLCanvasElement>) => {
-    const rect = e.currentTarget.getBoundingClientRect();
-    const cell = cellAtPoint(layout, e.clientX - rect.left, e.clientY - rect.top);
-    if (cell) onSeek(cell.step);
+function Zoom({ zoom, setZoom, cw }: { zoom: number | "fit"; setZoom: (z: number | "fit") => void; cw: number }) {
+  const i = ZOOMS.findIndex((z) => z >= cw);
+  return (
+    <span className="zoom" role="group" aria-label="zoom">
+      <button onClick={() => setZoom(ZOOMS[Math.max(0, i - 1)] ?? 1)} aria-label="zoom out" data-testid="zoom-out">
+        −
+      </button>
+      <button onClick={() => setZoom("fit")} aria-pressed={zoom === "fit"} data-testid="zoom-fit">
+        fit
+      </button>
+      <button onClick={() => setZoom(ZOOMS[Math.min(ZOOMS.length - 1, i < 0 ? ZOOMS.length - 1 : cw >= (ZOOMS[i] ?? 0) ? i + 1 : i)] ?? 16)} aria-label="zoom in" data-testid="zoom-in">
+        +
+      </button>
+      <span className="muted">{cw} px/step</span>
+    </span>
+  );
+}
+
+function Legend({ rows, total, pinned }: { rows: number; total: number; pinned: number }) {
+  return (
+    <div className="legend raster-legend">
+      <span>
+        <i className="sw pred" /> predicted true (solid, top)
+      </span>
+      <span>
+        <i className="sw truth" /> true in the world (hatched, bottom)
+      </span>
+      <span>
+        <i className="sw differ" /> they differ (tinted, dark middle bar)
+      </span>
+      <span>
+        markers: {MARKER_LANES.map((k) => `${MARKER_STYLE[k].glyph} ${MARKER_STYLE[k].text}`).join(" · ")}
+      </span>
+      <span>
+        rows: {pinned} task-relevant (bold, on top), then the others true at some step: {rows} of {total} atoms · click a
+        cell to jump there
+      </span>
+    </div>
+  );
+}
+
+interface RasterProps {
+  episode: EpisodeData;
+  index: number;
+  onSeek: (i: number) => void;
+  zoom: number | "fit";
+  setZoom: (z: number | "fit") => void;
+}
+
+function Raster({ episode, index, onSeek, zoom, setZoom }: RasterProps) {
+  const n = episode.steps.length;
+  const wrap = useRef<HTMLDivElement>(null);
+  const labels = useRef<HTMLCanvasElement>(null);
+  const cells = useRef<HTMLCanvasElement>(null);
+  const visible = useVisibleWidth(wrap);
+  const cw = cellWidth(zoom, n, visible);
+  const objects = useMemo(() => episodeObjects(episode), [episode]);
+  const raster = useMemo(() => buildRaster(episode), [episode, n]); // steps are appended in place: n marks a change
+  const { rows, pinned } = useMemo(() => timelineRows(raster.activeRows(), episode.atoms, objects), [raster, episode.atoms, objects]);
+  const markers = useMemo(() => markersOf(episode.steps), [episode, n]);
+  const height = HEADER_H + rows.length * ROW_H;
+  useEffect(() => {
+    const lctx = prepare(labels.current, LABEL_W, height);
+    if (lctx) drawLabels(lctx, rows.map((a) => episode.atoms[a]?.name ?? ""), pinned);
+    const cctx = prepare(cells.current, Math.max(1, n * cw), height);
+    if (cctx) drawCells(cctx, raster, rows, pinned, cw, (i) => episode.steps[i]?.t ?? i, markers);
+  }, [raster, rows, pinned, cw, n, height, markers, episode]);
+  useEffect(() => {
+    const el = wrap.current;
+    if (!el) return;
+    const x = index * cw;
+    const view = el.clientWidth - LABEL_W;
+    if (x < el.scrollLeft || x > el.scrollLeft + view - cw) el.scrollLeft = Math.max(0, x - view / 2);
+  }, [index, cw]);
+  const onClick = (e: React.MouseEvent<HTMLCanvasElement>) => {
+    const step = stepAtX(cw, n, e.clientX - e.currentTarget.getBoundingClientRect().left);
+    if (step !== null) onSeek(step);
   };
+  return (
+    <>
+      <div className="raster-tools">
+        <Zoom zoom={zoom} setZoom={setZoom} cw={cw} />
+        <Legend rows={rows.length} total={episode.atoms.length} pinned={pinned} />
+      </div>
+      <div className="raster-wrap" ref={wrap}>
+        <canvas ref={labels} className="labels" aria-hidden="true" />
+        <div className="cells">
+          <div className="raster-marker" data-testid="raster-marker" style={{ left: index * cw, width: Math.max(3, cw), height }} />
+          <canvas
+            ref={cells}
+            data-testid="raster"
+            onClick={onClick}
+            role="img"
+            aria-label={`atoms by steps raster: ${rows.length} rows, ${n} steps; use the slider to move`}
+            data-left={0}
+            data-top={HEADER_H}
+            data-cell-width={cw}
+            data-cell-height={ROW_H}
+            data-rows={rows.length}
+            data-pinned={pinned}
+          />
+        </div>
+      </div>
+    </>
+  );
+}
+
+export function Timeline({ episode, index, onSeek, playing, onPlay, live, following, onBackToLive }: Props) {
+  const n = episode.steps.length;
+  const [zoom, setZoom] = useState<number | "fit">("fit");
+  const step = episode.steps[index];
   const onKey = (e: React.KeyboardEvent) => {
     const target = stepForKey(e.key, index, n);
     if (target !== null) {
@@ -84,16 +166,16 @@ export function Timeline({ episode, index, onSeek, playing, onPlay }: Props) {
       onSeek(target);
     }
   };
-
   return (
-    <section className="panel timeline" aria-label="timeline" data-testid="timeline">
+    <section className="panel timeline" aria-labelledby="timeline-h" data-testid="timeline" id="timeline" tabIndex={-1}>
       <div className="panel-head">
-        <h2>Timeline</h2>
-        <button data-testid="play" onClick={() => onPlay(!playing)} disabled={n < 2}>
+        <h2 id="timeline-h">Timeline</h2>
+        <button data-testid="play" onClick={() => onPlay(!playing)} disabled={n < 2 || live}>
           {playing ? "❚❚ pause" : "▶ play"}
         </button>
         <input
           data-testid="slider"
+          id="timeline-slider"
           className="slider"
           type="range"
           min={0}
@@ -102,41 +184,23 @@ export function Timeline({ episode, index, onSeek, playing, onPlay }: Props) {
           value={index}
           aria-label="step"
           aria-valuetext={`step ${step?.t ?? 0}`}
+          onKeyDown={onKey}
           onChange={(e) => onSeek(parseInt(e.target.value, 10))}
         />
-        <span data-testid="step-indicator" data-t={step?.t ?? ""} data-index={index}>
+        <span data-testid="step-indicator" data-t={step?.t ?? ""} data-index={index} data-following={following ? "1" : "0"}>
           step {step?.t ?? "–"} ({index + 1}/{n})
         </span>
+        {live &&
+          (following ? (
+            <span className="live-tag">● following live</span>
+          ) : (
+            <button data-testid="follow-live" onClick={onBackToLive} className="primary">
+              ⏭ back to live
+            </button>
+          ))}
       </div>
       {episode.end && <Summary end={episode.end} />}
-      <div className="legend muted">
-        rows: the {rows.length} of {episode.atoms.length} atoms true at some step · top half, blue: predicted true ·
-        bottom half, grey: true in the world · red bar: they differ · orange frame: shown step · click a cell to
-        jump there (arrow keys move)
-      </div>
-      <div className="raster-wrap">
-        <div
-          className="raster-marker"
-          data-testid="raster-marker"
-          style={{
-            left: layout.left + index * layout.cellWidth,
-            width: Math.max(2, layout.cellWidth),
-            height: Math.max(CELL_H, rows.length * CELL_H),
-          }}
-        />
-        <canvas
-          ref={canvas}
-          data-testid="raster"
-          tabIndex={0}
-          onClick={onCanvasClick}
-          onKeyDown={onKey}
-          aria-label="atoms by steps raster"
-          data-left={layout.left}
-          data-cell-width={layout.cellWidth}
-          data-cell-height={layout.cellHeight}
-          data-rows={rows.length}
-        />
-      </div>
+      <Raster episode={episode} index={index} onSeek={onSeek} zoom={zoom} setZoom={setZoom} />
     </section>
   );
 }
@@ -147,9 +211,8 @@ function Summary({ end }: { end: EpisodeEnd }) {
   const rules = Object.entries(s.violations).sort((a, b) => (b[1] ?? 0) - (a[1] ?? 0));
   return (
     <div className="summary" data-testid="summary">
-      <strong>{end.success ? "✓ success" : end.stopped ? "■ stopped" : "✗ failed"}</strong> · {end.steps} steps ·
-      agreement {(100 * s.agreement).toFixed(1)} % · goal reached at step {s.goal_step_predicted ?? "–"} (predicted)
-      / {s.goal_step_truth ?? "–"} (world) · violations:{" "}
+      <strong>{endWord(end)}</strong> · {stepsPhrase(end)} · agreement {(100 * s.agreement).toFixed(1)} % · goal reached at
+      step {s.goal_step_predicted ?? "–"} (predicted) / {s.goal_step_truth ?? "–"} (world) · violations:{" "}
       {rules.length === 0 ? "none" : rules.map(([rule, count]) => `${rule} ×${count}`).join(", ")}
     </div>
   );

@@ -1,5 +1,5 @@
 import { expect, test } from "vitest";
-import { HAS_TRUTH, PRED, Raster, TRUTH, cellAtPoint, cellKind } from "./raster";
+import { HAS_TRUTH, PRED, Raster, TRUTH, cellAtPoint, cellKind, stepAtX, tickEvery } from "./raster";
 
 test("cells are indexed by atom then step", () => {
   const r = new Raster(3, 4);
@@ -31,4 +31,13 @@ test("a click maps to the cell under it", () => {
   expect(cellAtPoint(layout, 99, 12)).toBeNull();
   expect(cellAtPoint(layout, 100 + 3 * 50, 12)).toBeNull();
   expect(cellAtPoint(layout, 120, 10 + 6 * 3)).toBeNull();
+});
+
+test("axis ticks stay apart at any zoom; a column from x", () => {
+  expect(tickEvery(16)).toBe(5);
+  expect(tickEvery(3)).toBe(20);
+  expect(tickEvery(0.5)).toBe(100);
+  expect(stepAtX(4, 10, 9)).toBe(2);
+  expect(stepAtX(4, 10, 40)).toBeNull();
+  expect(stepAtX(4, 10, -1)).toBeNull();
 });

@@ -81,3 +81,15 @@ export function cellAtPoint(layout: RasterLayout, x: number, y: number): { atom:
   const atom = layout.rows[row];
   return atom === undefined ? null : { atom, step: col };
 }
+
+/** Steps between two labelled ticks of the step axis, so labels stay at least `minPx` apart. */
+export function tickEvery(cellWidth: number, minPx = 48): number {
+  for (const every of [1, 2, 5, 10, 20, 25, 50, 100, 200, 500, 1000]) if (every * cellWidth >= minPx) return every;
+  return 1000;
+}
+
+/** The column (step index) under x in the cells canvas, or null outside. */
+export function stepAtX(cellWidth: number, numSteps: number, x: number): number | null {
+  const col = Math.floor(x / cellWidth);
+  return x < 0 || col >= numSteps ? null : col;
+}

@@ -42,6 +42,8 @@ test("history rebuilds a joined episode; replay is shown beside it; errors are b
   expect(store.getSnapshot().live?.id).toBe("h");
   for (let i = 0; i < 9; i++) store.handle({ type: "error", message: `e${i}` });
   expect(store.getSnapshot().errors).toEqual(["e4", "e5", "e6", "e7", "e8"]);
+  store.handle(fakeStart("next"));
+  expect(store.getSnapshot().errors).toEqual([]); // a new episode clears the old one's errors
 });
 
 test("pause is the server's word: hello.running and status messages, cleared by the episode's end", () => {

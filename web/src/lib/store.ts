@@ -86,18 +86,19 @@ export class Store {
   handle(msg: ServerMessage): void {
     switch (msg.type) {
       case "hello":
-        this.update({ hello: msg, pausedEpisode: msg.running?.paused ? msg.running.episode_id : null });
+        // A (re)connection: errors about the old connection or episode are stale.
+        this.update({ hello: msg, pausedEpisode: msg.running?.paused ? msg.running.episode_id : null, errors: [] });
         return;
       case "status":
         this.update({ pausedEpisode: msg.paused ? msg.episode_id : null });
         return;
       case "episode_start":
-        this.update({ live: newEpisode(msg), replay: null, frame: null });
+        this.update({ live: newEpisode(msg), replay: null, frame: null, errors: [] });
         return;
       case "history": {
         const live = newEpisode(msg.start);
         for (const step of msg.steps) addStep(live, step);
-        this.update({ live, replay: null });
+        this.update({ live, replay: null, errors: [] });
         return;
       }
       case "step": {
