@@ -4,17 +4,24 @@ against the server's own records (GET /api/episodes/...). Used by test_browser.p
 
 from __future__ import annotations
 
-import base64
-import json
 import shutil
 import tempfile
 import threading
 import time
-import urllib.request
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from tests.web.checks import (
+    check_focused_view,
+    check_frame,
+    check_step,
+    contrast_violations,
+    get_json,
+    shown_state,
+    tabs_to_timeline,
+)
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = [
@@ -27,34 +34,6 @@ CHROMIUM_ARGS = [
     "--disable-component-update",
     "--disable-sync",
 ]
-FADE_STEPS = 5
-"""web/src/lib/flips.ts DEFAULT_FADE_STEPS: steps an atom stays marked as just flipped."""
-
-
-def get_json(url: str) -> Any:
-    with urllib.request.urlopen(url, timeout=30) as res:
-        return json.loads(res.read())
-
-
-def get_bytes(url: str) -> bytes:
-    with urllib.request.urlopen(url, timeout=30) as res:
-        return res.read()
-
-
-def expected_states(predicted: list[list[int]], k: int) -> list[str]:
-    """The belief panel's state of every atom at step k: turned-on/-off within FADE_STEPS of a flip, else on/off."""
-    out = []
-    for i, v in enumerate(predicted[k]):
-        flipped = any(predicted[j][i] != predicted[j + 1][i] for j in range(max(0, k - FADE_STEPS), k))
-        out.append(("turned-on" if v else "turned-off") if flipped else ("on" if v else "off"))
-    return out
-
-
-def bits(step: dict, key: str) -> list[int] | None:
-    if key == "predicted":
-        return step["predicted"]["object"]["values"] + step["predicted"]["action"]["values"]
-    t = step["truth"]
-    return None if t is None else t["object"] + t["action"]
 
 
 @dataclass
@@ -68,6 +47,13 @@ class Run:
     saw_turned_on: str | None = None
     episode_id: str | None = None
     checked_steps: list[int] = field(default_factory=list)
+    scrubbed_live: bool = False
+    drop_text: str = ""
+    focus: dict[str, int] = field(default_factory=dict)
+    contrast: list[dict] | None = None
+    tabs_to_timeline: int | None = None
+    two_columns_at_1024: bool = False
+    rerun_frames: int = 0
     reconnected: bool = False
 
 
@@ -76,16 +62,45 @@ def attach_console(page: Any, run: Run) -> None:
     page.on("pageerror", lambda e: run.console_errors.append(f"page error: {e}"))
 
 
+def steps_shown(page: Any) -> int:
+    return int(page.evaluate("() => document.querySelector('[data-testid=slider]')?.max ?? -1")) + 1
+
+
+def scrub_live(page: Any, run: Run) -> None:
+    """While the episode runs: move the slider back, see it stay there as steps arrive, then back to live."""
+    slider = page.locator("[data-testid=slider]")
+    box = slider.bounding_box()
+    page.mouse.click(box["x"] + box["width"] * 0.2, box["y"] + box["height"] / 2)
+    held = shown_state(page)
+    if held["following"]:
+        return  # the episode ended meanwhile
+    n = steps_shown(page)
+    page.wait_for_function(
+        f"() => Number(document.querySelector('[data-testid=slider]').max) + 1 > {n + 2}", timeout=30_000
+    )
+    assert shown_state(page)["index"] == held["index"], "the scrubbed step moved while the episode ran"
+    page.click("[data-testid=follow-live]")
+    page.wait_for_function(
+        "() => { const s = document.querySelector('[data-testid=step-indicator]').dataset;"
+        " return s.following === '1' && Number(s.index) + 1 >= Number(document.querySelector('[data-testid=slider]').max); }",
+        timeout=30_000,
+    )
+    run.scrubbed_live = True
+
+
 def watch_live_episode(page: Any, run: Run, max_steps: int, timeout_s: float) -> None:
-    """Start task 0 from the control bar; collect distinct frames and an atom just turned true until the end."""
+    """Start task 0; collect frames and a just-turned-true atom, scrub back live, drop; until the end."""
     page.wait_for_selector("[data-testid=connection][data-state=open]", timeout=30_000)
     page.select_option("[data-testid=task-select]", "0")
+    page.select_option("[data-testid=init-select]", "0")
     page.fill("input[placeholder=server]", str(max_steps))
     page.click("[data-testid=start]")
+    page.wait_for_selector("[data-testid=stream-banner][data-kind=live]", timeout=60_000)
+    assert page.locator("[data-testid=start]").is_disabled(), "Start stays enabled during a run"
     frames: set[str] = set()
-    screenshot_taken = False
+    screenshot_taken = dropped = False
     deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
+    while time.monotonic() < deadline and not page.query_selector("[data-testid=summary]"):
         src = page.evaluate(
             "() => document.querySelector('[data-testid=camera]')?.getAttribute('src') ?? null"
         )
@@ -95,103 +110,106 @@ def watch_live_episode(page: Any, run: Run, max_steps: int, timeout_s: float) ->
             run.saw_turned_on = page.evaluate(
                 "() => document.querySelector('[data-testid=atom][data-state=turned-on]')?.dataset.atom ?? null"
             )
-        if run.saw_turned_on and len(frames) >= 10 and not screenshot_taken:
+        n = steps_shown(page)
+        if not run.scrubbed_live and n >= 8:
+            scrub_live(page, run)
+        if not dropped and n >= 14:
+            page.fill("input[aria-label='drop steps']", "6")
+            page.click("[data-testid=drop]")
+            page.wait_for_selector("[data-testid=drop-indicator][data-active='1']", timeout=30_000)
+            run.drop_text = page.locator("[data-testid=drop-indicator]").inner_text()
+            dropped = True
+        if run.saw_turned_on and len(frames) >= 10 and not screenshot_taken and dropped:
             page.screenshot(path=str(run.out / "live-view.png"))
             screenshot_taken = True
-        if page.query_selector("[data-testid=timeline]"):
-            break
         time.sleep(0.03)
     run.distinct_frames = len(frames)
     if not screenshot_taken:
         page.screenshot(path=str(run.out / "live-view.png"))
 
 
-def shown_state(page: Any) -> dict[str, Any]:
-    return page.evaluate(
-        """() => ({
-          index: Number(document.querySelector('[data-testid=step-indicator]').dataset.index),
-          t: Number(document.querySelector('[data-testid=step-indicator]').dataset.t),
-          src: document.querySelector('[data-testid=camera]')?.getAttribute('src') ?? null,
-          agreement: document.querySelector('[data-testid=agreement]').textContent,
-          atoms: [...document.querySelectorAll('[data-testid=atom]')].map(
-            (e) => [e.dataset.atom, e.dataset.state, e.dataset.agree]),
-          violations: [...document.querySelectorAll('[data-testid=violations] [data-rule]')].map(
-            (e) => e.dataset.rule),
-        })"""
-    )
-
-
-def check_step(page: Any, run: Run, record: dict, k: int) -> None:
-    """The image, atom states, agreement and violations shown equal the server's recorded step k."""
-    shown = shown_state(page)
-    steps = record["steps"]
-    step = steps[k]
-    assert shown["index"] == k and shown["t"] == step["t"], (shown["index"], shown["t"], k)
-    frame = get_bytes(f"{run.base}/api/episodes/{run.episode_id}/frames/{step['t']}")
-    src = shown["src"]
-    assert src, "no image shown"
-    if src.startswith("data:image/jpeg;base64,"):
-        assert base64.b64decode(src.split(",", 1)[1]) == frame, (
-            f"image at step {k} differs from the recording"
-        )
-    else:
-        assert src.split("?")[0].endswith(f"/api/episodes/{run.episode_id}/frames/{step['t']}"), src
-    names = record["start"]["atoms"]["object"] + record["start"]["atoms"]["action"]
-    predicted = [bits(s, "predicted") for s in steps]
-    states = expected_states(predicted, k)  # type: ignore[arg-type]
-    got = {a: (s, agree) for a, s, agree in shown["atoms"]}
-    assert set(got) == set(names)
-    truth = bits(step, "truth")
-    probed = record["start"]["probed"]["object"] + record["start"]["probed"]["action"]
-    for i, name in enumerate(names):
-        assert got[name][0] == states[i], (name, got[name], states[i], k)
-        if truth is not None and probed[i]:
-            assert got[name][1] == ("agree" if predicted[k][i] == truth[i] else "disagree"), name  # type: ignore[index]
-        else:
-            assert got[name][1] == "unknown", name
-    if truth is not None:
-        pairs = [(p, w) for p, w, ok in zip(predicted[k], truth, probed, strict=True) if ok]  # type: ignore[arg-type]
-        percent = 100 * sum(p == w for p, w in pairs) / len(pairs)
-        assert f"agreement {percent:.1f} %" in shown["agreement"], shown["agreement"]
-    assert shown["violations"] == [v["rule"] for v in step["violations"]]
-    run.checked_steps.append(k)
+def go_to(page: Any, k: int) -> None:
+    """Step index k by keyboard on the focused slider: Home, PageUp by 10, arrows by 1."""
+    page.locator("[data-testid=slider]").focus()
+    page.keyboard.press("Home")
+    for _ in range(k // 10):
+        page.keyboard.press("PageUp")
+    for _ in range(k % 10):
+        page.keyboard.press("ArrowRight")
+    assert shown_state(page)["index"] == k
 
 
 def scrub_and_check(page: Any, run: Run, record: dict) -> None:
-    """Slider by mouse and keyboard, and a click on the raster: each shows the recorded step."""
+    """Slider by mouse and keyboard (PageUp = 10 steps), and a click on the raster: each shows the recorded step."""
     n = len(record["steps"])
+    page.check("[data-testid=show-unprobed]")  # every atom on the page, for check_step
     slider = page.locator("[data-testid=slider]")
     box = slider.bounding_box()
     page.mouse.click(box["x"] + box["width"] * 0.3, box["y"] + box["height"] / 2)
-    check_step(page, run, record, shown_state(page)["index"])
+    check_step(page, run.base, record, shown_state(page)["index"])
+    run.tabs_to_timeline = tabs_to_timeline(page)
     k = n // 2
-    slider.focus()
-    page.keyboard.press("Home")
-    for _ in range(k):
-        page.keyboard.press("ArrowRight")
-    check_step(page, run, record, k)
-    predicted = bits(record["steps"][k], "predicted") or []
-    page.check("[data-testid=filter-true]")  # the filters: true atoms only, then those changed at this step
-    assert page.locator("[data-testid=atom]").count() == sum(predicted)
-    page.check("[data-testid=filter-changed]")
-    changed = sum(
-        a != b for a, b in zip(predicted, bits(record["steps"][k - 1], "predicted") or [], strict=True)
-    )
-    assert page.locator("[data-testid=atom]").count() == changed
-    page.check("[data-testid=filter-all]")
+    go_to(page, k)
+    check_step(page, run.base, record, k)
+    run.checked_steps.append(k)
     raster = page.locator("[data-testid=raster]")
     d = raster.evaluate("(e) => ({...e.dataset})")
     marker = page.locator("[data-testid=raster-marker]").evaluate("(e) => e.offsetLeft")
     assert abs(marker - (float(d["left"]) + k * float(d["cellWidth"]))) <= 1, marker
     target = max(0, n // 4)
     x = float(d["left"]) + (target + 0.5) * float(d["cellWidth"])
-    raster.click(position={"x": x, "y": float(d["cellHeight"]) / 2})
-    check_step(page, run, record, target)
-    # back to k for the timeline screenshot
+    raster.click(position={"x": x, "y": float(d["top"]) + float(d["cellHeight"]) / 2})
+    check_step(page, run.base, record, target)
+    run.checked_steps.append(target)
+    slider.focus()
+    page.keyboard.press("PageUp")
+    assert shown_state(page)["index"] == min(n - 1, target + 10), "PageUp is not 10 steps"
+    go_to(page, k)  # back to the middle, for the focused view and the screenshots
+    run.focus = check_focused_view(page, record, k)
+    run.checked_steps.append(k)
+
+
+def check_layout(page: Any, run: Run) -> None:
+    """At 1024 px the beliefs keep two columns; greyscale screenshots of the page."""
+    page.set_viewport_size({"width": 1024, "height": 700})
+    page.wait_for_timeout(300)
+    tops = page.evaluate(
+        "() => [...document.querySelectorAll('[data-testid=others] [data-testid=atom]')].slice(0, 2).map((e) => [e.offsetTop, e.offsetLeft])"
+    )
+    run.two_columns_at_1024 = len(tops) == 2 and tops[0][0] == tops[1][0] and tops[0][1] != tops[1][1]
+    page.screenshot(path=str(run.out / "layout-1024.png"))
+    page.set_viewport_size({"width": 1400, "height": 1000})
+    page.add_style_tag(content="html { filter: grayscale(1); }")
+    page.locator("[data-testid=timeline]").screenshot(path=str(run.out / "timeline-greyscale.png"))
+    page.evaluate(
+        "() => document.querySelectorAll('style').forEach((s) => s.textContent.includes('grayscale') && s.remove())"
+    )
+
+
+def check_rerun(page: Any, run: Run, timeout_s: float) -> None:
+    """A store episode re-run through the probes: banner, Drop disabled, and every frame shown afterwards."""
+    item = page.locator("[data-testid=episode]", has=page.locator("[data-testid=stream-episode]")).first
+    store_id = item.get_attribute("data-id")
+    item.locator("[data-testid=stream-episode]").click()
+    page.wait_for_selector("[data-testid=stream-banner][data-kind='store re-run']", timeout=60_000)
+    assert page.locator("[data-testid=drop]").is_disabled(), "Drop is enabled during a store re-run"
+    page.wait_for_selector("[data-testid=summary]", timeout=int(timeout_s * 1000))
+    record = get_json(f"{run.base}/api/episodes/{store_id}")
+    assert page.evaluate("() => document.querySelector('[data-testid=stream-banner]').textContent").count(
+        store_id
+    )
+    slider = page.locator("[data-testid=slider]")
     slider.focus()
     page.keyboard.press("Home")
-    for _ in range(k):
-        page.keyboard.press("ArrowRight")
+    for k, step in enumerate(record["steps"]):
+        page.wait_for_function(
+            "() => { const i = document.querySelector('[data-testid=camera]'); return i && i.complete && i.naturalWidth > 0; }",
+            timeout=10_000,
+        )
+        check_frame(run.base, store_id, shown_state(page), step["t"])
+        run.rerun_frames += 1
+        if k < len(record["steps"]) - 1:
+            page.keyboard.press("ArrowRight")
 
 
 def check_reconnect(page: Any, run: Run, restart: Callable[[], None]) -> None:
@@ -213,6 +231,24 @@ def check_reconnect(page: Any, run: Run, restart: Callable[[], None]) -> None:
     run.reconnected = True
 
 
+def open_and_replay(page: Any, run: Run, record: dict, timeout_s: float) -> None:
+    """The recorded episode from the episodes list: opened at step 0, then replayed to its end."""
+    page.click("[data-testid=refresh-episodes]")
+    item = page.locator(f"[data-testid=episode][data-id='{run.episode_id}']")
+    item.locator("[data-testid=open-episode]").click()
+    page.wait_for_selector("[data-testid=stream-banner][data-kind=recorded]")
+    check_step(page, run.base, record, 0)
+    item.locator("[data-testid=replay-episode]").click()
+    last = len(record["steps"]) - 1
+    page.wait_for_function(  # plays at the stream's rate, then stops at the last step
+        f"() => Number(document.querySelector('[data-testid=step-indicator]').dataset.index) == {last}",
+        timeout=int(timeout_s * 1000),
+    )
+    check_step(page, run.base, record, last)
+    run.checked_steps += [0, last]
+    page.click("[data-testid=back-to-live]")
+
+
 def run_browser(
     base: str,
     out: Path,
@@ -221,10 +257,12 @@ def run_browser(
     min_steps: int = 10,
     episode_timeout_s: float = 240,
     restart: Callable[[], None] | None = None,
+    rerun: bool = True,
 ) -> Run:
     """The whole end-to-end scenario against the server at ``base``; screenshots go to ``out``.
 
-    ``restart`` (optional) restarts the server on the same port, for the reconnect check at the end.
+    ``restart`` (optional) restarts the server on the same port, for the reconnect check at the end; ``rerun``
+    re-runs the first store episode (the server needs ``--store``).
     """
     from playwright.sync_api import sync_playwright
 
@@ -244,30 +282,19 @@ def run_browser(
             attach_console(page, run)
             page.goto(base + "/")
             watch_live_episode(page, run, max_steps, episode_timeout_s)
-            page.wait_for_selector("[data-testid=timeline]", timeout=int(episode_timeout_s * 1000))
             listed = get_json(f"{base}/api/episodes")
             live = [e for e in listed if e["source"] == "live"]
             assert live, listed
             run.episode_id = max(live, key=lambda e: e["created"] + e["id"])["id"]
             record = get_json(f"{base}/api/episodes/{run.episode_id}")
             assert record["end"] is not None and len(record["steps"]) >= min_steps
+            run.contrast = contrast_violations(page)
             scrub_and_check(page, run, record)
             page.screenshot(path=str(out / "timeline.png"))
-
-            # The recorded episode from the episodes list: opened at step 0, then replayed to its end.
-            page.click("[data-testid=refresh-episodes]")
-            item = page.locator(f"[data-testid=episode][data-id='{run.episode_id}']")
-            item.locator("[data-testid=open-episode]").click()
-            page.wait_for_selector("[data-testid=back-to-live]")
-            check_step(page, run, record, 0)
-            item.locator("[data-testid=replay-episode]").click()
-            last = len(record["steps"]) - 1
-            page.wait_for_function(  # plays at the stream's rate, then stops at the last step
-                f"() => Number(document.querySelector('[data-testid=step-indicator]').dataset.index) == {last}",
-                timeout=int(episode_timeout_s * 1000),
-            )
-            check_step(page, run, record, last)
-            page.click("[data-testid=back-to-live]")
+            check_layout(page, run)
+            open_and_replay(page, run, record, episode_timeout_s)
+            if rerun:
+                check_rerun(page, run, episode_timeout_s)
             if restart is not None:
                 check_reconnect(page, run, restart)
             ctx.close()
@@ -280,12 +307,14 @@ if __name__ == "__main__":
     # The README's screenshot, made with trained probes: against a running `vlaprobe serve` (defaults:
     # runs/default/probes), `python -m tests.web.browser http://127.0.0.1:6006 OUT` runs the test's scenario
     # (a 60-step expert episode of task 0) and writes live-view.png and timeline.png to OUT; docs/img/live-view.png
-    # is OUT/live-view.png.
+    # is OUT/live-view.png. With --store on the server, the store re-run is checked too.
     import sys
 
     if len(sys.argv) != 3:
         sys.exit("usage: python -m tests.web.browser BASE_URL OUT_DIR")
-    seen = run_browser(sys.argv[1].rstrip("/"), Path(sys.argv[2]), max_steps=60)
+    base_url = sys.argv[1].rstrip("/")
+    has_store = any(e["source"] == "store" for e in get_json(f"{base_url}/api/episodes"))
+    seen = run_browser(base_url, Path(sys.argv[2]), max_steps=60, rerun=has_store)
+    print({k: v for k, v in vars(seen).items() if k not in ("base", "out")})
     if seen.console_errors:
         sys.exit(f"console errors: {seen.console_errors}")
-    print(f"{seen.distinct_frames} frames, steps checked {seen.checked_steps}; screenshots in {sys.argv[2]}")

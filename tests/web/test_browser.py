@@ -1,9 +1,11 @@
 """End to end in a real browser: `vlaprobe serve` (tiny model, LIBERO, the cognition) and the web UI in Debian's
-chromium, driven by Playwright. The UI starts a task, streams frames, marks a flip, ends the episode, scrubs the
-timeline (mouse, keyboard, raster click) and replays the recording; every step it shows is compared with the
-server's record. Then the server restarts and the page must reconnect by itself and list the recording again.
-Screenshots go to test-output/browser/ (random probes: noisier than trained ones, so the README's
-docs/img/live-view.png is made with trained probes by `python -m tests.web.browser`, see docs/web.md).
+chromium, driven by Playwright. The UI starts a task, streams frames, marks a flip, is scrubbed back while the
+episode runs and returns to live, drops the object and shows it, ends the episode; the timeline is scrubbed
+(mouse, keyboard, raster click), the focused beliefs view and its disagreement filter are checked, axe-core's
+contrast rule runs on the page, the recording is replayed and a store episode re-run; every step shown is
+compared with the server's record. Then the server restarts and the page must reconnect by itself and list the
+recording again. Screenshots go to test-output/browser/ (random probes: noisier than trained ones, so the
+README's docs/img/live-view.png is made with trained probes by `python -m tests.web.browser`, see docs/web.md).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from pathlib import Path
 import pytest
 import torch
 from tests.web.browser import CHROMIUM, run_browser
+from tests.web.checks import AXE
 
 REPO = Path(__file__).resolve().parents[2]
 OUT = REPO / "test-output" / "browser"
@@ -83,6 +86,19 @@ def make_tiny_probes(folder: Path) -> None:
     ProbeSet(meta, tensors).save(folder)
 
 
+def collect_store(folder: Path) -> None:
+    """One short stored episode of task 0 (the tiny model watching the expert), for the store re-run."""
+    from vlaprobe.collection.collect import collect
+    from vlaprobe.configs.collect import CollectConfig
+    from vlaprobe.configs.env import EnvConfig
+
+    cfg = CollectConfig(
+        out=folder, tasks=(0,), episodes_per_task=1, max_tries_per_task=1, keep_failed=True, progress=False,
+        env=EnvConfig(max_steps=12),
+    )  # fmt: skip
+    collect(cfg)
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -104,6 +120,7 @@ class Serve:
             "serve",
             "--probes", str(self.tmp / "probes"),
             "--recordings", str(self.tmp / "live"),
+            "--store", str(self.tmp / "store"),
             "--host", "127.0.0.1",
             "--port", str(self.port),
         ]  # fmt: skip
@@ -144,6 +161,7 @@ def server(tmp_path_factory: pytest.TempPathFactory):
     """A running `vlaprobe serve` on random tiny-model probes."""
     tmp = tmp_path_factory.mktemp("serve")
     make_tiny_probes(tmp / "probes")
+    collect_store(tmp / "store")
     srv = Serve(tmp)
     try:
         srv.start()
@@ -153,6 +171,7 @@ def server(tmp_path_factory: pytest.TempPathFactory):
 
 
 def test_live_episode_timeline_replay_and_reconnect_in_chromium(server: Serve) -> None:
+    assert AXE.is_file(), f"axe-core is missing ({AXE}): run `cd web && npm ci`"
     if OUT.exists():
         shutil.rmtree(OUT)
     run = run_browser(
@@ -162,6 +181,13 @@ def test_live_episode_timeline_replay_and_reconnect_in_chromium(server: Serve) -
     assert run.saw_turned_on, "no atom was shown as just turned true"
     assert len(run.checked_steps) >= 5
     assert run.reconnected, "the page did not reconnect after the server restarted"
+    assert run.scrubbed_live, "the slider was not scrubbed back during the live episode"
+    assert "forced open" in run.drop_text and "left" in run.drop_text, run.drop_text
+    assert run.contrast == [], run.contrast
+    assert run.tabs_to_timeline is not None and run.tabs_to_timeline <= 5
+    assert run.two_columns_at_1024, "the beliefs collapse to one column at 1024 px"
+    assert run.rerun_frames >= 10, run.rerun_frames
+    assert run.focus["pinned"] > 0 and run.focus["differing"] > 0, run.focus
     assert not run.console_errors, run.console_errors
-    for name in ("live-view.png", "timeline.png"):
+    for name in ("live-view.png", "timeline.png", "timeline-greyscale.png", "layout-1024.png"):
         assert (OUT / name).stat().st_size > 10_000, name

@@ -14,13 +14,26 @@ import { caption } from "./lib/status";
 import type { Store } from "./lib/store";
 import { useAppState } from "./useAppState";
 
+/** Moves the keyboard focus to an element (the link's own jump would only scroll). */
+function focusOn(id: string) {
+  return (e: React.MouseEvent) => {
+    const el = document.getElementById(id);
+    if (!el) return;
+    e.preventDefault();
+    el.focus();
+    el.scrollIntoView({ block: "nearest" });
+  };
+}
+
 function SkipLinks() {
   return (
     <nav className="skip" aria-label="skip links">
-      <a href="#timeline" data-testid="skip-timeline">
+      <a href="#timeline" data-testid="skip-timeline" onClick={focusOn("timeline-slider")}>
         Skip to the timeline
       </a>
-      <a href="#beliefs">Skip to the beliefs</a>
+      <a href="#beliefs" onClick={focusOn("beliefs")}>
+        Skip to the beliefs
+      </a>
     </nav>
   );
 }

@@ -106,7 +106,7 @@ export function Beliefs({ episode, index, fadeSteps }: { episode: EpisodeData; i
   const predicted = episode.predicted[index];
   if (!step || !predicted) {
     return (
-      <section className="panel beliefs" aria-labelledby="beliefs-h" id="beliefs">
+      <section className="panel beliefs" aria-labelledby="beliefs-h" id="beliefs" tabIndex={-1}>
         <h2 id="beliefs-h">Beliefs</h2>
         <p className="muted">waiting for the first step…</p>
       </section>
@@ -118,7 +118,7 @@ export function Beliefs({ episode, index, fadeSteps }: { episode: EpisodeData; i
   const unprobed = rows.filter((r) => !r.probed).length;
   const flips = step.flips;
   return (
-    <section className="panel beliefs" aria-labelledby="beliefs-h" id="beliefs">
+    <section className="panel beliefs" aria-labelledby="beliefs-h" id="beliefs" tabIndex={-1}>
       <div className="panel-head">
         <h2 id="beliefs-h">Beliefs</h2>
         <span data-testid="agreement" className="agreement-total">

@@ -10,7 +10,7 @@ export const ROW_H = 14;
 export const LANE_H = 13;
 export const AXIS_H = 18;
 export const HEADER_H = MARKER_LANES.length * LANE_H + AXIS_H;
-export const LABEL_W = 250;
+export const LABEL_W = 290;
 
 const INK = "#1d2230";
 const PRED_FILL = "#1f4fa0";
@@ -70,10 +70,23 @@ export function drawLabels(ctx: CanvasRenderingContext2D, names: readonly string
     ctx.fillStyle = r % 2 ? "#f1f3f7" : "#fff";
     ctx.fillRect(0, y, LABEL_W, ROW_H);
     ctx.fillStyle = INK;
-    ctx.font = r < pinned ? "bold 12px ui-monospace, monospace" : "12px ui-monospace, monospace";
-    ctx.fillText(name, 4, y + ROW_H / 2, LABEL_W - 8);
+    ctx.font = r < pinned ? "bold 11px ui-monospace, monospace" : "11px ui-monospace, monospace";
+    ctx.fillText(fit(ctx, name, LABEL_W - 8), 4, y + ROW_H / 2);
   });
   separator(ctx, pinned, LABEL_W);
+}
+
+/** The text cut with an ellipsis to fit `width` (never squeezed: squeezed glyphs are unreadable). */
+function fit(ctx: CanvasRenderingContext2D, text: string, width: number): string {
+  if (ctx.measureText(text).width <= width) return text;
+  let lo = 0;
+  let hi = text.length;
+  while (lo < hi) {
+    const mid = Math.ceil((lo + hi) / 2);
+    if (ctx.measureText(`${text.slice(0, mid)}…`).width <= width) lo = mid;
+    else hi = mid - 1;
+  }
+  return `${text.slice(0, lo)}…`;
 }
 
 function separator(ctx: CanvasRenderingContext2D, pinned: number, w: number): void {
