@@ -48,6 +48,7 @@ class Run:
     episode_id: str | None = None
     checked_steps: list[int] = field(default_factory=list)
     scrubbed_live: bool = False
+    second_tab_synced: bool = False
     drop_text: str = ""
     focus: dict[str, int] = field(default_factory=dict)
     contrast: list[dict] | None = None
@@ -88,6 +89,24 @@ def scrub_live(page: Any, run: Run) -> None:
     run.scrubbed_live = True
 
 
+def check_second_tab(page: Any, run: Run) -> None:
+    """A page opened mid-episode (a reload, a second tab) shows the running episode's task, init and driver;
+    from its top, the timeline's slider is a few Tab presses away (the skip link)."""
+    other = page.context.new_page()
+    attach_console(other, run)
+    other.goto(run.base + "/")
+    other.wait_for_selector("[data-testid=stream-banner][data-kind=live]", timeout=60_000)
+    other.wait_for_function(
+        "() => document.querySelector('[data-testid=init-select]').value === '0'", timeout=10_000
+    )
+    assert other.locator("[data-testid=task-select]").input_value() == "0"
+    assert other.locator("[data-testid=start]").is_disabled()
+    other.wait_for_selector("[data-testid=slider]", timeout=30_000)
+    run.tabs_to_timeline = tabs_to_timeline(other)  # from the top of a freshly loaded page
+    run.second_tab_synced = True
+    other.close()
+
+
 def watch_live_episode(page: Any, run: Run, max_steps: int, timeout_s: float) -> None:
     """Start task 0; collect frames and a just-turned-true atom, scrub back live, drop; until the end."""
     page.wait_for_selector("[data-testid=connection][data-state=open]", timeout=30_000)
@@ -95,7 +114,7 @@ def watch_live_episode(page: Any, run: Run, max_steps: int, timeout_s: float) ->
     page.select_option("[data-testid=init-select]", "0")
     page.fill("input[placeholder=server]", str(max_steps))
     page.click("[data-testid=start]")
-    page.wait_for_selector("[data-testid=stream-banner][data-kind=live]", timeout=60_000)
+    page.wait_for_selector("[data-testid=stream-banner][data-kind=live]", timeout=int(timeout_s * 1000))
     assert page.locator("[data-testid=start]").is_disabled(), "Start stays enabled during a run"
     frames: set[str] = set()
     screenshot_taken = dropped = False
@@ -113,6 +132,7 @@ def watch_live_episode(page: Any, run: Run, max_steps: int, timeout_s: float) ->
         n = steps_shown(page)
         if not run.scrubbed_live and n >= 8:
             scrub_live(page, run)
+            check_second_tab(page, run)
         if not dropped and n >= 14:
             page.fill("input[aria-label='drop steps']", "6")
             page.click("[data-testid=drop]")
@@ -147,7 +167,6 @@ def scrub_and_check(page: Any, run: Run, record: dict) -> None:
     box = slider.bounding_box()
     page.mouse.click(box["x"] + box["width"] * 0.3, box["y"] + box["height"] / 2)
     check_step(page, run.base, record, shown_state(page)["index"])
-    run.tabs_to_timeline = tabs_to_timeline(page)
     k = n // 2
     go_to(page, k)
     check_step(page, run.base, record, k)

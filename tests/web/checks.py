@@ -183,9 +183,7 @@ def contrast_violations(page: Any) -> list[dict]:
 
 
 def tabs_to_timeline(page: Any, max_tabs: int = 5) -> int:
-    """Tab presses from the top of the page to the timeline's skip link; Enter then focuses the slider."""
-    page.evaluate("() => { document.activeElement?.blur(); window.scrollTo(0, 0); }")
-    page.locator("body").focus()
+    """Tab presses from the top of a freshly loaded page to the timeline's skip link; Enter then focuses the slider."""
     for presses in range(1, max_tabs + 1):
         page.keyboard.press("Tab")
         if page.evaluate("() => document.activeElement?.dataset.testid") == "skip-timeline":

@@ -182,6 +182,7 @@ def test_live_episode_timeline_replay_and_reconnect_in_chromium(server: Serve) -
     assert len(run.checked_steps) >= 5
     assert run.reconnected, "the page did not reconnect after the server restarted"
     assert run.scrubbed_live, "the slider was not scrubbed back during the live episode"
+    assert run.second_tab_synced, "a second tab did not show the running episode's settings"
     assert "forced open" in run.drop_text and "left" in run.drop_text, run.drop_text
     assert run.contrast == [], run.contrast
     assert run.tabs_to_timeline is not None and run.tabs_to_timeline <= 5
