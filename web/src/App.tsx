@@ -81,7 +81,9 @@ export function App({ store }: { store: Store }) {
           )}
         </div>
       </main>
-      <Episodes state={s} />
+      <aside aria-label="episodes list">
+        <Episodes state={s} />
+      </aside>
     </div>
   );
 }

@@ -24,7 +24,7 @@ export function StreamBanner({ state, onClose }: { state: AppState; onClose: () 
         {start.store_episode ? ` · re-run of ${start.store_episode}` : ""} · {episode.id}
         {!running && !opened ? " · ended" : ""}
       </span>
-      <span className="muted">{KIND_NOTE[kind]}</span>
+      <span className="muted">{running || opened ? KIND_NOTE[kind] : "ended: scrub it here, or open it from the episodes list"}</span>
       {opened && (
         <button data-testid="back-to-live" onClick={onClose}>
           close: back to live
