@@ -189,7 +189,7 @@ def scrub_and_check(page: Any, run: Run, record: dict) -> None:
 
 
 def check_layout(page: Any, run: Run) -> None:
-    """At 1024 px the beliefs keep two columns; greyscale screenshots of the page."""
+    """At 1024 px the beliefs keep two columns; zoom widens the raster's steps; a greyscale screenshot."""
     page.set_viewport_size({"width": 1024, "height": 700})
     page.wait_for_timeout(300)
     tops = page.evaluate(
@@ -198,6 +198,11 @@ def check_layout(page: Any, run: Run) -> None:
     run.two_columns_at_1024 = len(tops) == 2 and tops[0][0] == tops[1][0] and tops[0][1] != tops[1][1]
     page.screenshot(path=str(run.out / "layout-1024.png"))
     page.set_viewport_size({"width": 1400, "height": 1000})
+    raster = page.locator("[data-testid=raster]")
+    fit = float(raster.get_attribute("data-cell-width") or 0)
+    page.click("[data-testid=zoom-in]")
+    assert float(raster.get_attribute("data-cell-width") or 0) > fit, "zoom in did not widen the steps"
+    page.click("[data-testid=zoom-fit]")
     page.add_style_tag(content="html { filter: grayscale(1); }")
     page.locator("[data-testid=timeline]").screenshot(path=str(run.out / "timeline-greyscale.png"))
     page.evaluate(

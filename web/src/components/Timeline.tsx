@@ -49,16 +49,17 @@ function useVisibleWidth(ref: React.RefObject<HTMLDivElement | null>): number {
 }
 
 function Zoom({ zoom, setZoom, cw }: { zoom: number | "fit"; setZoom: (z: number | "fit") => void; cw: number }) {
-  const i = ZOOMS.findIndex((z) => z >= cw);
+  const smaller = [...ZOOMS].reverse().find((z) => z < cw) ?? ZOOMS[0] ?? 1;
+  const larger = ZOOMS.find((z) => z > cw) ?? ZOOMS[ZOOMS.length - 1] ?? 16;
   return (
     <span className="zoom" role="group" aria-label="zoom">
-      <button onClick={() => setZoom(ZOOMS[Math.max(0, i - 1)] ?? 1)} aria-label="zoom out" data-testid="zoom-out">
+      <button onClick={() => setZoom(smaller)} aria-label="zoom out" data-testid="zoom-out">
         −
       </button>
       <button onClick={() => setZoom("fit")} aria-pressed={zoom === "fit"} data-testid="zoom-fit">
         fit
       </button>
-      <button onClick={() => setZoom(ZOOMS[Math.min(ZOOMS.length - 1, i < 0 ? ZOOMS.length - 1 : cw >= (ZOOMS[i] ?? 0) ? i + 1 : i)] ?? 16)} aria-label="zoom in" data-testid="zoom-in">
+      <button onClick={() => setZoom(larger)} aria-label="zoom in" data-testid="zoom-in">
         +
       </button>
       <span className="muted">{cw} px/step</span>
