@@ -13,6 +13,10 @@ import { DEFAULT_FADE_STEPS } from "./lib/flips";
 import { caption } from "./lib/status";
 import type { Store } from "./lib/store";
 import { useAppState } from "./useAppState";
+import { useThrottled } from "./useThrottled";
+
+/** While following a live episode the beliefs (hundreds of rows) update at most 4 times a second. */
+const LIVE_BELIEFS_MS = 250;
 
 /** Moves the keyboard focus to an element (the link's own jump would only scroll). */
 function focusOn(id: string) {
@@ -42,6 +46,7 @@ export function App({ store }: { store: Store }) {
   const s = useAppState(store);
   const { snap, episode, index } = s;
   const n = episode?.steps.length ?? 0;
+  const beliefIndex = useThrottled(index, s.following ? LIVE_BELIEFS_MS : 0);
   return (
     <div className="app">
       <SkipLinks />
@@ -72,7 +77,7 @@ export function App({ store }: { store: Store }) {
             />
           )}
           {episode ? (
-            <Beliefs episode={episode} index={index} fadeSteps={DEFAULT_FADE_STEPS} />
+            <Beliefs episode={episode} index={Math.min(beliefIndex, n - 1)} fadeSteps={DEFAULT_FADE_STEPS} />
           ) : (
             <section className="panel" aria-labelledby="beliefs-h" id="beliefs">
               <h2 id="beliefs-h">Beliefs</h2>

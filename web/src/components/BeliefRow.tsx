@@ -40,7 +40,31 @@ function Prob({ prob }: { prob: number | null }) {
   );
 }
 
-export const BeliefRowView = memo(function BeliefRowView({ row, fade, window }: { row: Row; fade: number; window: number }) {
+interface RowProps {
+  row: Row;
+  fade: number;
+  window: number;
+}
+
+/** Rows are rebuilt every step; a row re-renders only when what it shows changed. */
+function sameRow(a: RowProps, b: RowProps): boolean {
+  const x = a.row;
+  const y = b.row;
+  return (
+    a.fade.toFixed(2) === b.fade.toFixed(2) &&
+    a.window === b.window &&
+    x.name === y.name &&
+    x.state === y.state &&
+    x.truth === y.truth &&
+    x.worldAge < a.window === y.worldAge < b.window &&
+    x.disagree === y.disagree &&
+    x.probed === y.probed &&
+    x.pinned === y.pinned &&
+    (x.prob ?? -1).toFixed(2) === (y.prob ?? -1).toFixed(2)
+  );
+}
+
+export const BeliefRowView = memo(function BeliefRowView({ row, fade, window }: RowProps) {
   const agreement = agreementOf(row);
   return (
     <li
@@ -62,4 +86,4 @@ export const BeliefRowView = memo(function BeliefRowView({ row, fade, window }: 
       <span className={`agree-tag ${agreement}`}>{agreement === "agree" ? "✓" : agreement === "disagree" ? "✗ differs" : ""}</span>
     </li>
   );
-});
+}, sameRow);

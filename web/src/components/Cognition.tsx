@@ -110,7 +110,7 @@ function Events({ events }: { events: SidedEvent[] }) {
     <ul className="events" data-testid="events">
       {events.length === 0 && <li className="muted">none yet</li>}
       {events.slice(0, 60).map(({ side, event: e }, i) => (
-        <li key={`${e.t}-${side}-${e.kind}-${i}`} className={`event ${side}`} data-side={side}>
+        <li key={events.length - i} className={`event ${side}`} data-side={side}>
           <span className={`side-tag ${side}`}>{SIDE_MARK[side]}</span> <span className="muted">t={e.t}</span> {e.kind.replace("_", " ")}: {e.message}
         </li>
       ))}

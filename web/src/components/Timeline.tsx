@@ -8,10 +8,11 @@ import { episodeObjects } from "../lib/beliefRows";
 import { type EpisodeData, buildRaster } from "../lib/episode";
 import { timelineRows } from "../lib/focus";
 import { MARKER_LANES, MARKER_STYLE, markersOf } from "../lib/markers";
-import { stepAtX } from "../lib/raster";
-import { HEADER_H, LABEL_W, ROW_H, drawCells, drawLabels, prepare } from "../lib/rasterDraw";
+import { stepAtX, tickEvery } from "../lib/raster";
+import { type CellsView, HEADER_H, LABEL_W, ROW_H, drawCells, drawLabels, prepare } from "../lib/rasterDraw";
 import { stepForKey } from "../lib/slider";
 import { endWord, stepsPhrase } from "../lib/status";
+import { useThrottled } from "../useThrottled";
 import type { EpisodeEnd } from "../messages";
 
 interface Props {
@@ -28,10 +29,10 @@ interface Props {
 
 const ZOOMS = [1, 2, 4, 8, 16];
 
-/** Pixels per step: "fit" fills the visible width (at least 1, at most 8). */
-function cellWidth(zoom: number | "fit", n: number, visible: number): number {
+/** Pixels per step: "fit" fills the visible width with the episode's budget (at least 1, at most 8). */
+function cellWidth(zoom: number | "fit", steps: number, visible: number): number {
   if (zoom !== "fit") return zoom;
-  return Math.max(1, Math.min(8, Math.floor((visible / Math.max(1, n)) * 4) / 4));
+  return Math.max(1, Math.min(8, Math.floor((visible / Math.max(1, steps)) * 4) / 4));
 }
 
 function useVisibleWidth(ref: React.RefObject<HTMLDivElement | null>): number {
@@ -98,24 +99,51 @@ interface RasterProps {
   setZoom: (z: number | "fit") => void;
 }
 
+/**
+ * The cells canvas is as wide as the episode's step budget, so a live episode only adds columns: each step
+ * draws its new column (from the last axis tick on); rows, zoom or size changing redraw it whole.
+ */
+function useCellsCanvas(canvas: React.RefObject<HTMLCanvasElement | null>, view: Omit<CellsView, "from">, width: number, height: number) {
+  const drawn = useRef({ key: "", n: 0 });
+  const n = view.raster.numSteps;
+  useEffect(() => {
+    const key = `${view.rows.join(",")}|${view.pinned}|${view.cw}|${width}|${height}`;
+    let from = 0;
+    let ctx: CanvasRenderingContext2D | null | undefined;
+    if (key === drawn.current.key && n >= drawn.current.n) {
+      const every = tickEvery(view.cw);
+      from = Math.max(0, Math.floor((drawn.current.n - 1) / every) * every);
+      ctx = canvas.current?.getContext("2d");
+    } else ctx = prepare(canvas.current, width, height);
+    if (ctx) drawCells(ctx, { ...view, from });
+    drawn.current = { key, n };
+  }, [canvas, view, n, width, height]);
+}
+
 function Raster({ episode, index, onSeek, zoom, setZoom }: RasterProps) {
-  const n = episode.steps.length;
+  const n = useThrottled(episode.steps.length, episode.end ? 0 : 500);
   const wrap = useRef<HTMLDivElement>(null);
   const labels = useRef<HTMLCanvasElement>(null);
   const cells = useRef<HTMLCanvasElement>(null);
   const visible = useVisibleWidth(wrap);
-  const cw = cellWidth(zoom, n, visible);
+  const budget = Math.max(episode.steps.length, episode.end ? 0 : episode.start.max_steps);
+  const cw = cellWidth(zoom, budget, visible);
   const objects = useMemo(() => episodeObjects(episode), [episode]);
-  const raster = useMemo(() => buildRaster(episode), [episode, n]); // steps are appended in place: n marks a change
-  const { rows, pinned } = useMemo(() => timelineRows(raster.activeRows(), episode.atoms, objects), [raster, episode.atoms, objects]);
-  const markers = useMemo(() => markersOf(episode.steps), [episode, n]);
+  const raster = useMemo(() => buildRaster(episode, n), [episode, n]); // steps are appended in place: n marks a change
+  const active = useMemo(() => raster.activeRows(), [raster]);
+  const activeKey = active.join(",");
+  const { rows, pinned } = useMemo(() => timelineRows(active, episode.atoms, objects), [activeKey, episode.atoms, objects]); // new rows only
+  const markers = useMemo(() => markersOf(episode.steps.slice(0, n)), [episode, n]);
   const height = HEADER_H + rows.length * ROW_H;
+  const view = useMemo(
+    () => ({ raster, rows, pinned, cw, markers, stepT: (i: number) => episode.steps[i]?.t ?? i }),
+    [raster, rows, pinned, cw, markers, episode],
+  );
   useEffect(() => {
-    const lctx = prepare(labels.current, LABEL_W, height);
-    if (lctx) drawLabels(lctx, rows.map((a) => episode.atoms[a]?.name ?? ""), pinned);
-    const cctx = prepare(cells.current, Math.max(1, n * cw), height);
-    if (cctx) drawCells(cctx, raster, rows, pinned, cw, (i) => episode.steps[i]?.t ?? i, markers);
-  }, [raster, rows, pinned, cw, n, height, markers, episode]);
+    const ctx = prepare(labels.current, LABEL_W, height);
+    if (ctx) drawLabels(ctx, rows.map((a) => episode.atoms[a]?.name ?? ""), pinned);
+  }, [rows, pinned, height, episode.atoms]);
+  useCellsCanvas(cells, view, Math.max(1, budget * cw), height);
   useEffect(() => {
     const el = wrap.current;
     if (!el) return;
@@ -124,7 +152,7 @@ function Raster({ episode, index, onSeek, zoom, setZoom }: RasterProps) {
     if (x < el.scrollLeft || x > el.scrollLeft + view - cw) el.scrollLeft = Math.max(0, x - view / 2);
   }, [index, cw]);
   const onClick = (e: React.MouseEvent<HTMLCanvasElement>) => {
-    const step = stepAtX(cw, n, e.clientX - e.currentTarget.getBoundingClientRect().left);
+    const step = stepAtX(cw, episode.steps.length, e.clientX - e.currentTarget.getBoundingClientRect().left);
     if (step !== null) onSeek(step);
   };
   return (

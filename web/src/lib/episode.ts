@@ -46,9 +46,10 @@ export function episodeFromRecord(record: EpisodeRecord): EpisodeData {
   return episode;
 }
 
-/** The atoms x steps raster of the whole episode. */
-export function buildRaster(episode: EpisodeData): Raster {
-  const raster = new Raster(episode.atoms.length, episode.steps.length);
-  episode.predicted.forEach((bits, t) => raster.setStep(t, bits, episode.truth[t] ?? null));
+/** The atoms x steps raster of the episode's first `count` steps (default: all). */
+export function buildRaster(episode: EpisodeData, count: number = episode.steps.length): Raster {
+  const n = Math.min(count, episode.steps.length);
+  const raster = new Raster(episode.atoms.length, n);
+  for (let t = 0; t < n; t++) raster.setStep(t, episode.predicted[t] ?? [], episode.truth[t] ?? null);
   return raster;
 }

@@ -33,7 +33,7 @@ test("task objects: the server's goal objects, else the instruction's nouns; pin
   expect(atoms.map((a) => isPinned(a, objects))).toEqual([true, false, true]); // action atoms always
 });
 
-test("sections: disagreements first, then changes, then true atoms; filters; unprobed hidden and counted", () => {
+test("sections: disagreements first, then the vector order; filters; unprobed hidden and counted", () => {
   const rows = [
     row({ index: 0, pinned: true, value: 1 }),
     row({ index: 1, pinned: true, disagree: true, value: 1, truth: 0 }),
@@ -44,7 +44,7 @@ test("sections: disagreements first, then changes, then true atoms; filters; unp
     row({ index: 6, pinned: true, age: 1 }),
   ];
   const all = focusedSections(rows, { filter: "all", showUnprobed: false, window: 5 });
-  expect(all.pinned.map((r) => r.index)).toEqual([1, 6, 0]);
+  expect(all.pinned.map((r) => r.index)).toEqual([1, 0, 6]);
   expect(all.other.map((r) => r.index)).toEqual([3, 2]);
   expect(all.hiddenUnprobed).toBe(2);
   const disagree = focusedSections(rows, { filter: "disagree", showUnprobed: false, window: 5 });
@@ -52,10 +52,11 @@ test("sections: disagreements first, then changes, then true atoms; filters; unp
   expect(disagree.hiddenUnprobed).toBe(0); // unprobed atoms never disagree
   const changedRows = focusedSections(rows, { filter: "changed", showUnprobed: true, window: 5 });
   expect(changedRows.pinned.map((r) => r.index)).toEqual([6]);
-  expect(changedRows.other.map((r) => r.index)).toEqual([3, 5, 2]); // world change counts; newest first
-  expect(focusedSections(rows, { filter: "changed", showUnprobed: true, window: 2 }).other.map((r) => r.index)).toEqual([3, 5]);
+  expect(changedRows.other.map((r) => r.index)).toEqual([3, 2, 5]); // a world change counts too
+  expect(focusedSections(rows, { filter: "changed", showUnprobed: true, window: 2 }).other.map((r) => r.index)).toEqual([3, 5]); // age 2 is out
   const trueRows = focusedSections(rows, { filter: "true", showUnprobed: true, window: 5 });
   expect(trueRows.pinned.map((r) => r.index)).toEqual([1, 0, 4]);
+  expect(compareRows(rows[3]!, rows[0]!)).toBeLessThan(0); // a disagreement sorts before an agreeing atom
   expect(compareRows(rows[0]!, rows[0]!)).toBe(0);
 });
 

@@ -83,13 +83,12 @@ export function passes(row: BeliefRow, opts: RowOptions): boolean {
   return true;
 }
 
-/** Disagreements first, then recent changes (newest first), then true atoms, then the vector order. */
+/**
+ * Disagreements first, then the vector order. Deliberately not by recency: a list that reorders at the stream's
+ * rate cannot be read (recent changes are marked, and the "changed" filter selects them).
+ */
 export function compareRows(a: BeliefRow, b: BeliefRow): number {
   if (a.disagree !== b.disagree) return a.disagree ? -1 : 1;
-  const ageA = Math.min(a.age, a.worldAge);
-  const ageB = Math.min(b.age, b.worldAge);
-  if (ageA !== ageB) return ageA < ageB ? -1 : 1;
-  if (a.value !== b.value) return b.value - a.value;
   return a.index - b.index;
 }
 

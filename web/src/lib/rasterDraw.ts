@@ -95,28 +95,35 @@ function separator(ctx: CanvasRenderingContext2D, pinned: number, w: number): vo
   if (pinned > 0) ctx.fillRect(0, HEADER_H + pinned * ROW_H - 1, w, 2);
 }
 
-/** Marker lanes, the step axis, and the cells. */
-export function drawCells(
-  ctx: CanvasRenderingContext2D,
-  raster: Raster,
-  rows: readonly number[],
-  pinned: number,
-  cw: number,
-  stepT: (index: number) => number,
-  markers: readonly Marker[],
-): void {
-  const n = raster.numSteps;
-  const w = n * cw;
-  drawMarkers(ctx, markers, cw);
-  drawAxis(ctx, n, cw, stepT);
+/** What the cells canvas shows; columns `from`..numSteps-1 are (re)drawn (0: the whole canvas). */
+export interface CellsView {
+  raster: Raster;
+  rows: readonly number[];
+  pinned: number;
+  cw: number;
+  stepT: (index: number) => number;
+  markers: readonly Marker[];
+  from: number;
+}
+
+/** Marker lanes, the step axis, and the cells of columns `from` onwards (a live episode adds a column a step). */
+export function drawCells(ctx: CanvasRenderingContext2D, v: CellsView): void {
+  const n = v.raster.numSteps;
+  const x0 = v.from * v.cw;
+  const w = (n - v.from) * v.cw;
+  ctx.clearRect(x0, 0, w, HEADER_H + v.rows.length * ROW_H);
+  drawMarkers(ctx, v.markers.filter((m) => m.index >= v.from), v.cw);
+  drawAxis(ctx, v.from, n, v.cw, v.stepT);
   const truthFill = hatch(ctx);
-  rows.forEach((atom, r) => {
+  v.rows.forEach((atom, r) => {
     const y = HEADER_H + r * ROW_H;
     ctx.fillStyle = r % 2 ? "#f1f3f7" : "#fff";
-    ctx.fillRect(0, y, w, ROW_H);
-    for (let t = 0; t < n; t++) drawCell(ctx, raster.get(atom, t), t * cw, y, cw, truthFill);
+    ctx.fillRect(x0, y, w, ROW_H);
+    for (let t = v.from; t < n; t++) drawCell(ctx, v.raster.get(atom, t), t * v.cw, y, v.cw, truthFill);
   });
-  separator(ctx, pinned, w);
+  ctx.fillStyle = INK;
+  ctx.fillRect(x0, HEADER_H - 1, w, 1);
+  if (v.pinned > 0) ctx.fillRect(x0, HEADER_H + v.pinned * ROW_H - 1, w, 2);
 }
 
 function drawCell(ctx: CanvasRenderingContext2D, code: number, x: number, y: number, cw: number, truthFill: CanvasPattern | string): void {
@@ -141,13 +148,13 @@ function drawCell(ctx: CanvasRenderingContext2D, code: number, x: number, y: num
   }
 }
 
-function drawAxis(ctx: CanvasRenderingContext2D, n: number, cw: number, stepT: (index: number) => number): void {
+function drawAxis(ctx: CanvasRenderingContext2D, from: number, n: number, cw: number, stepT: (index: number) => number): void {
   const y0 = HEADER_H - AXIS_H;
   const every = tickEvery(cw);
   ctx.fillStyle = INK;
   ctx.font = "11px system-ui, sans-serif";
   ctx.textBaseline = "middle";
-  for (let i = 0; i < n; i++) {
+  for (let i = from; i < n; i++) {
     const t = stepT(i);
     if (t % every !== 0) continue;
     const x = i * cw;
