@@ -6,6 +6,7 @@ import os
 import sys
 import tempfile
 from collections.abc import Callable
+from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
@@ -20,11 +21,12 @@ def _file_mode() -> int:
     return 0o666 & ~mask
 
 
-def write_atomic(path: str | Path, data: bytes | str | Callable[[str], object]) -> None:
+def write_atomic(path: str | Path, data: bytes | str | Callable[[str], object], mode: int | None = None) -> None:
     """Write ``path`` under a temporary name in the same folder, then rename it into place.
 
     ``data`` is the content, or a function that writes the file whose path it is given (e.g. safetensors'
-    ``save_file``). A reader never sees a half-written file; a failure leaves no temporary behind.
+    ``save_file``). A reader never sees a half-written file; a failure leaves no temporary behind. ``mode``:
+    the file's permissions (default: as a new file under the umask).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -35,7 +37,7 @@ def write_atomic(path: str | Path, data: bytes | str | Callable[[str], object]) 
                 f.write(data.encode() if isinstance(data, str) else data)
         if callable(data):
             data(tmp)
-        os.chmod(tmp, _file_mode())
+        os.chmod(tmp, _file_mode() if mode is None else mode)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -83,3 +85,65 @@ def check_output_folder(out: str | Path, flag: str = "--out") -> None:
         raise VlaprobeError(
             f"{flag} {out}: cannot write in {parent} ({exc.strerror}); choose a writable folder"
         ) from None
+
+
+# -- output folders a command owns ------------------------------------------------------------------------
+OWNER_FILE = ".vlaprobe-owner"
+"""Marker a command leaves in the output folder it writes: the command's name. A folder holding files but no
+marker naming that command is someone else's and is not written into (``train``, ``report``, ``run``)."""
+
+
+@dataclass(frozen=True)
+class FolderKind:
+    """What one command's output folder holds, for :func:`check_owned_folder`."""
+
+    owner: str
+    """The command that writes it ("train", "report", "run"): the marker's content."""
+    known: Callable[[str], bool] = lambda name: True
+    """Names (not starting with ".") the command writes there; others are refused even in a marked folder."""
+    legacy: Callable[[Path], bool] = lambda folder: False
+    """Recognises a folder this command wrote before markers existed (accepted without the marker)."""
+    fix: str = "choose an empty or new folder"
+
+
+def folder_owner(out: Path) -> str | None:
+    """The command named by ``out``'s marker (None: no readable marker)."""
+    try:
+        return (out / OWNER_FILE).read_text(encoding="utf-8").strip() or None
+    except (OSError, UnicodeDecodeError):
+        return None
+
+
+def check_owned_folder(out: str | Path, kind: FolderKind, flag: str = "--out") -> None:
+    """Refuse (one line, before any work) an ``out`` that cannot be written or holds files ``kind.owner`` did
+    not write: a folder with files is accepted only when its marker (or, for older outputs, ``kind.legacy``)
+    says the command wrote it, and then only if every file is one the command writes."""
+    from vlaprobe.errors import VlaprobeError
+
+    out = Path(out)
+    check_output_folder(out, flag)
+    if not out.is_dir():
+        return
+    names = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
+    if not names:
+        return
+    ours = folder_owner(out) == kind.owner or (folder_owner(out) is None and kind.legacy(out))
+    foreign = [n for n in names if not kind.known(n)] if ours else names
+    if foreign:
+        shown = ", ".join(foreign[:4]) + (", ..." if len(foreign) > 4 else "")
+        raise VlaprobeError(
+            f"{flag} {out} holds files `vlaprobe {kind.owner}` did not write ({shown}); {kind.fix}"
+        )
+
+
+def claim_folder(out: str | Path, kind: FolderKind, flag: str = "--out") -> Path:
+    """:func:`check_owned_folder`, then create ``out`` and leave the marker: the folder is the command's."""
+    out = Path(out)
+    check_owned_folder(out, kind, flag)
+    mark_folder(out, kind.owner)
+    return out
+
+
+def mark_folder(out: str | Path, owner: str) -> None:
+    """Leave ``owner``'s marker in ``out`` (created if needed), with the folder's other files' permissions."""
+    write_atomic(Path(out) / OWNER_FILE, owner + "\n")
