@@ -50,7 +50,9 @@ def _load_config_file(path: Path, cls: type) -> Any:
             data = json.loads(text)
     except Exception as exc:
         reason = " ".join(str(exc).split())  # YAML's errors span several lines (with a pointer): one line
-        raise VlaprobeError(f"cannot parse config file {path}: {reason}; fix the file or pass another") from None
+        raise VlaprobeError(
+            f"cannot parse config file {path}: {reason}; fix the file or pass another"
+        ) from None
     if not isinstance(data, dict):
         raise VlaprobeError(f"config file {path} must hold a mapping of field names to values")
     if cls.__name__ != "RunConfig" and {"collect", "train", "report"} <= set(data):

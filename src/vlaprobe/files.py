@@ -21,7 +21,9 @@ def _file_mode() -> int:
     return 0o666 & ~mask
 
 
-def write_atomic(path: str | Path, data: bytes | str | Callable[[str], object], mode: int | None = None) -> None:
+def write_atomic(
+    path: str | Path, data: bytes | str | Callable[[str], object], mode: int | None = None
+) -> None:
     """Write ``path`` under a temporary name in the same folder, then rename it into place.
 
     ``data`` is the content, or a function that writes the file whose path it is given (e.g. safetensors'

@@ -129,7 +129,9 @@ def local_client(app: Any) -> Any:
 
     class Local(TestClient):
         def websocket_connect(self, url: str, *args: Any, **kw: Any) -> Any:
-            return super().websocket_connect("ws://127.0.0.1" + url if url.startswith("/") else url, *args, **kw)
+            return super().websocket_connect(
+                "ws://127.0.0.1" + url if url.startswith("/") else url, *args, **kw
+            )
 
     return Local(app, base_url="http://127.0.0.1")
 

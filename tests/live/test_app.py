@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
-from tests.live.fakes import local_client, FAIL_INIT, SUCCESS_INIT, episode_length, fake_app, fakes
+from tests.live.fakes import FAIL_INIT, SUCCESS_INIT, episode_length, fake_app, fakes, local_client
 
 from vlaprobe.live import protocol as P
 from vlaprobe.live.app import Limits

@@ -7,8 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
-from tests.live.fakes import local_client, SUCCESS_INIT, real_engine
+from tests.live.fakes import SUCCESS_INIT, local_client, real_engine
 
 from vlaprobe.cognition.monitor import monitor
 from vlaprobe.cognition.readout import ProbeReadout

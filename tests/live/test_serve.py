@@ -57,7 +57,9 @@ def test_token_from_a_file_or_the_environment(tmp_path: Path, monkeypatch: pytes
     secret = tmp_path / "token"
     secret.write_text("from-file\n")
     assert resolve_token(ServeConfig(host="0.0.0.0", token_file=secret)) == "from-file"
-    assert limits_of(ServeConfig(host="0.0.0.0"), resolve_token(ServeConfig(host="0.0.0.0"))).token == "from-env"
+    assert (
+        limits_of(ServeConfig(host="0.0.0.0"), resolve_token(ServeConfig(host="0.0.0.0"))).token == "from-env"
+    )
     secret.write_text("")
     with pytest.raises(VlaprobeError, match="is empty"):
         resolve_token(ServeConfig(token_file=secret))

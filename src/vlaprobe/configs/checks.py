@@ -50,8 +50,9 @@ RUN_FILES = frozenset({"activations", "probes", "report", "config.json", "live"}
 RUN_FOLDER = FolderKind(
     "run",
     known=lambda name: name in RUN_FILES,
-    legacy=lambda folder: (folder / "activations" / "zarr.json").is_file()
-    or (folder / "probes" / "probes.json").is_file(),
+    legacy=lambda folder: (
+        (folder / "activations" / "zarr.json").is_file() or (folder / "probes" / "probes.json").is_file()
+    ),
     fix="choose an empty or new folder, or an earlier run's folder to resume it",
 )
 """A run folder: the stages' folders, the run's config and ``live/`` (recordings of ``vlaprobe serve``)."""
@@ -129,10 +130,14 @@ def check_env(env: EnvConfig, prefix: str = "env.") -> None:
     _at_least(env.max_steps, 1, _flag(prefix, "max_steps"))
     _at_least(env.image_size, 16, _flag(prefix, "image_size"))
     _at_least(env.settle_steps, 0, _flag(prefix, "settle_steps"))
-    check_step_budget(env.max_steps, env.settle_steps, _flag(prefix, "max_steps"), _flag(prefix, "settle_steps"))
+    check_step_budget(
+        env.max_steps, env.settle_steps, _flag(prefix, "max_steps"), _flag(prefix, "settle_steps")
+    )
 
 
-def check_step_budget(max_steps: int, settle_steps: int, flag: str, settle_flag: str = "--env.settle-steps") -> None:
+def check_step_budget(
+    max_steps: int, settle_steps: int, flag: str, settle_flag: str = "--env.settle-steps"
+) -> None:
     """A budget the simulator can run to its end (LIBERO's horizon counts the settling steps too)."""
     limit = step_limit(settle_steps)
     if max_steps > limit:
@@ -186,7 +191,9 @@ def check_serve(cfg: ServeConfig) -> None:
     if not 0 <= cfg.port <= 65535:
         raise VlaprobeError(f"--port must be between 0 and 65535 (0: any free port), got {cfg.port}")
     _at_least(cfg.post_success_steps, 0, "--post-success-steps")
-    _at_least(cfg.max_message_bytes, MIN_MESSAGE_BYTES, "--max-message-bytes", " (a start command is ~100 bytes)")
+    _at_least(
+        cfg.max_message_bytes, MIN_MESSAGE_BYTES, "--max-message-bytes", " (a start command is ~100 bytes)"
+    )
     _at_least(cfg.threads, 0, "--threads", " (0: the default)")
     if not (math.isfinite(cfg.image_hz) and cfg.image_hz > 0):
         raise VlaprobeError(f"--image-hz must be a positive number, got {cfg.image_hz}")
@@ -197,7 +204,9 @@ def check_serve(cfg: ServeConfig) -> None:
     if cfg.token is not None and cfg.token_file is not None:
         raise VlaprobeError("--token and --token-file both given; pass one (or set $VLAPROBE_TOKEN)")
     if cfg.token_file is not None and not cfg.token_file.is_file():
-        raise VlaprobeError(f"--token-file {cfg.token_file} is not a file; write the secret into a file first")
+        raise VlaprobeError(
+            f"--token-file {cfg.token_file} is not a file; write the secret into a file first"
+        )
 
 
 MIN_MESSAGE_BYTES = 1024

@@ -70,7 +70,9 @@ def public_message(exc: BaseException | str) -> str:
     path is kept) and without a traceback."""
     if isinstance(exc, OSError) and exc.strerror:
         name = Path(str(exc.filename)).name if exc.filename else ""
-        text = f"episode failed: {exc.strerror}" + (f" ({name}); check --recordings and the disk" if name else "")
+        text = f"episode failed: {exc.strerror}" + (
+            f" ({name}); check --recordings and the disk" if name else ""
+        )
     elif isinstance(exc, BaseException):
         text = str(exc) if isinstance(exc, VlaprobeError) else f"episode failed: {type(exc).__name__}: {exc}"
     else:

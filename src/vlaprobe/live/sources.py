@@ -91,7 +91,7 @@ class Simulator:
             )
         n = self._known_inits
         if n and init != "random" and not 0 <= int(init) < n:
-            raise VlaprobeError(f"no init state {init} for task {task}; use 0..{n - 1} or \"random\"")
+            raise VlaprobeError(f'no init state {init} for task {task}; use 0..{n - 1} or "random"')
 
     def source(self, task: int, init: int | str, driver: str, max_steps: int | None, seed: int) -> LiveSource:
         """An episode to run (the simulator is built in the episode thread, on the first record)."""
