@@ -91,8 +91,8 @@ def check_output_folder(out: str | Path, flag: str = "--out") -> None:
 
 # -- output folders a command owns ------------------------------------------------------------------------
 OWNER_FILE = ".vlaprobe-owner"
-"""Marker a command leaves in the output folder it writes: the command's name. A folder holding files but no
-marker naming that command is someone else's and is not written into (``train``, ``report``, ``run``)."""
+"""Marker that ``report`` and ``run`` leave in their output folder: the command's name. ``train``'s folder is
+recognised by its ``probes.json`` instead (a file of its own format)."""
 
 
 @dataclass(frozen=True)
@@ -102,9 +102,10 @@ class FolderKind:
     owner: str
     """The command that writes it ("train", "report", "run"): the marker's content."""
     known: Callable[[str], bool] = lambda name: True
-    """Names (not starting with ".") the command writes there; others are refused even in a marked folder."""
-    legacy: Callable[[Path], bool] = lambda folder: False
-    """Recognises a folder this command wrote before markers existed (accepted without the marker)."""
+    """Names (not starting with ".") the command writes there; others are refused even in its own folder."""
+    signature: Callable[[Path], bool] = lambda folder: False
+    """Recognises the command's folder without a marker: its own file format (``probes.json``), or a folder
+    written before markers existed."""
     fix: str = "choose an empty or new folder"
 
 
@@ -118,8 +119,8 @@ def folder_owner(out: Path) -> str | None:
 
 def check_owned_folder(out: str | Path, kind: FolderKind, flag: str = "--out") -> None:
     """Refuse (one line, before any work) an ``out`` that cannot be written or holds files ``kind.owner`` did
-    not write: a folder with files is accepted only when its marker (or, for older outputs, ``kind.legacy``)
-    says the command wrote it, and then only if every file is one the command writes."""
+    not write: a folder with files is the command's only when its marker (or ``kind.signature``) says so, and
+    then only if every file is one the command writes. The one check of ``train``, ``report`` and ``run``."""
     from vlaprobe.errors import VlaprobeError
 
     out = Path(out)
@@ -129,7 +130,8 @@ def check_owned_folder(out: str | Path, kind: FolderKind, flag: str = "--out") -
     names = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
     if not names:
         return
-    ours = folder_owner(out) == kind.owner or (folder_owner(out) is None and kind.legacy(out))
+    owner = folder_owner(out)
+    ours = owner == kind.owner or (owner is None and kind.signature(out))
     foreign = [n for n in names if not kind.known(n)] if ours else names
     if foreign:
         shown = ", ".join(foreign[:4]) + (", ..." if len(foreign) > 4 else "")
@@ -138,14 +140,6 @@ def check_owned_folder(out: str | Path, kind: FolderKind, flag: str = "--out") -
         )
 
 
-def claim_folder(out: str | Path, kind: FolderKind, flag: str = "--out") -> Path:
-    """:func:`check_owned_folder`, then create ``out`` and leave the marker: the folder is the command's."""
-    out = Path(out)
-    check_owned_folder(out, kind, flag)
-    mark_folder(out, kind.owner)
-    return out
-
-
 def mark_folder(out: str | Path, owner: str) -> None:
-    """Leave ``owner``'s marker in ``out`` (created if needed), with the folder's other files' permissions."""
+    """Leave ``owner``'s marker in ``out`` (created if needed): the folder is the command's from now on."""
     write_atomic(Path(out) / OWNER_FILE, owner + "\n")

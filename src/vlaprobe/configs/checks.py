@@ -42,7 +42,7 @@ def _legacy_report(folder: Path) -> bool:
 REPORT_FOLDER = FolderKind(
     "report",
     known=lambda name: name.endswith(REPORT_SUFFIXES),
-    legacy=_legacy_report,
+    signature=_legacy_report,
     fix="choose an empty or new folder (the default is report/ beside the probes)",
 )
 """The folder ``vlaprobe report`` writes: its page, tables and figures (png, svg, json, csv)."""
@@ -50,7 +50,7 @@ RUN_FILES = frozenset({"activations", "probes", "report", "config.json", "live"}
 RUN_FOLDER = FolderKind(
     "run",
     known=lambda name: name in RUN_FILES,
-    legacy=lambda folder: (
+    signature=lambda folder: (
         (folder / "activations" / "zarr.json").is_file() or (folder / "probes" / "probes.json").is_file()
     ),
     fix="choose an empty or new folder, or an earlier run's folder to resume it",

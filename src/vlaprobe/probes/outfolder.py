@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import FolderKind, check_owned_folder, mark_folder
+from vlaprobe.files import FolderKind, check_owned_folder
 
 if TYPE_CHECKING:
     from vlaprobe.probes.data import ProbeData
@@ -33,10 +33,11 @@ PROBE_FILES = frozenset(
 PROBES_FOLDER = FolderKind(
     "train",
     known=lambda name: name in PROBE_FILES,
-    legacy=lambda folder: (folder / "probes.json").is_file(),
+    signature=lambda folder: (folder / "probes.json").is_file(),
     fix="choose an empty folder or an earlier probes folder (e.g. RUN/probes, not the run or store folder)",
 )
-"""A probe folder (:func:`vlaprobe.files.check_owned_folder`: the mechanism ``report`` and ``run`` share)."""
+"""A probe folder, recognised by its ``probes.json`` (:func:`vlaprobe.files.check_owned_folder`, the mechanism
+``report`` and ``run`` share; they leave a marker file as they have no file of their own format)."""
 
 
 def check_probe_folder(out: Path, flag: str = "--out") -> None:
@@ -86,7 +87,6 @@ def replace_folder(out: Path, write: Callable[[Path], None]) -> Path:
     old = out.parent / f".{out.name}.{tag}.old"
     try:
         write(tmp)
-        mark_folder(tmp, PROBES_FOLDER.owner)
         if out.exists():
             os.rename(out, old)
         try:
