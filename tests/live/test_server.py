@@ -133,9 +133,8 @@ def test_connect_churn_leaks_nothing(tmp_path: Path) -> None:
     with LiveServer(fake_app(tmp_path, step_seconds=0.01)) as srv, connect(srv.url) as owner:
         owner.recv(timeout=10)
         base_tasks = srv.in_loop(lambda: len(asyncio.all_tasks()))
-        owner.send(
-            json.dumps({"type": "start", "task": 0, "init": FAIL_INIT, "max_steps": 400})
-        )  # outlasts the 50 connects on a loaded machine
+        # 400 steps: the episode outlasts the 50 connects on a loaded machine
+        owner.send(json.dumps({"type": "start", "task": 0, "init": FAIL_INIT, "max_steps": 400}))
         for i in range(50):
             with connect(srv.url) as ws:
                 ws.recv(timeout=10)
