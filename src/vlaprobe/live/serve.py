@@ -171,19 +171,7 @@ def build_engine(
         num_init_states=num_init_states,
         **extra,
     )
-    replays = None
-    if cfg.store is not None:
-        episodes = StoreEpisodes(cfg.store)
-        store_model = episodes.store.meta.get("model_id")
-        if store_model is not None:
-            probes.check(model_id=str(store_model))
-        for h in HEADS:
-            if episodes.atoms[h] != list(probes.meta["heads"][h]["atom_names"]):
-                raise VlaprobeError(
-                    f"the probes' {h} atoms differ from store {cfg.store}'s; pass the store the probes were "
-                    "trained on (--store) or its probes (--probes)"
-                )
-        replays = StoreReplays(episodes, make_builder)
+    replays = None if cfg.store is None else store_replays(cfg.store, probes, make_builder)
     atoms = {h: list(probes.meta["heads"][h]["atom_names"]) for h in HEADS}
     kept = {h: set(probes.atoms(h)) for h in HEADS}
     hello = P.Hello(
@@ -206,6 +194,21 @@ def build_engine(
     return Engine(
         hello=hello, simulator=sim, make_builder=make_builder, recordings=recordings, replays=replays
     )
+
+
+def store_replays(store: Path, probes: Any, make_builder: Callable[..., StepBuilder]) -> StoreReplays:
+    """The store's episodes for replay: checked intact (the repair advice otherwise) and matching the probes."""
+    episodes = StoreEpisodes(store)
+    store_model = episodes.store.meta.get("model_id")
+    if store_model is not None:
+        probes.check(model_id=str(store_model))
+    for h in HEADS:
+        if episodes.atoms[h] != list(probes.meta["heads"][h]["atom_names"]):
+            raise VlaprobeError(
+                f"the probes' {h} atoms differ from store {store}'s; pass the store the probes were "
+                "trained on (--store) or its probes (--probes)"
+            )
+    return StoreReplays(episodes, make_builder)
 
 
 def limits_of(cfg: ServeConfig, token: str | None) -> Limits:
