@@ -81,10 +81,12 @@ class Commands:
         replays = self.engine.replays
         if replays is None:
             raise VlaprobeError("no store to replay from; start the server with --store DIR")
-        spec = replays.episodes.spec(cmd.episode_id)
+        info = replays.episodes.infos.get(cmd.episode_id)
+        if info is None:
+            raise VlaprobeError(f"no stored episode {cmd.episode_id[:80]!r}; GET /api/episodes lists them")
         hz = cmd.hz or self.limits.replay_hz
-        self.session.start(
-            spec.task,
+        self.session.start(  # the episode is read (and its chunks checked) in the episode thread
+            info.task,
             "replay",
             lambda: replays.source(cmd.episode_id, hz),
             EpisodeControl(),
