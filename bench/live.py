@@ -167,11 +167,13 @@ def readers_main(base: str, ids: list[str], n: int, started: Any, stop: Any, res
 
     def fetch(url: str) -> int:
         try:
-            with urllib.request.urlopen(url, timeout=120) as r:
+            with urllib.request.urlopen(url, timeout=600) as r:
                 r.read()
                 return r.status
         except urllib.error.HTTPError as exc:
             return exc.code
+        except OSError:  # refused or timed out: counted as failed
+            return 0
 
     def reader(i: int) -> None:
         k = i
