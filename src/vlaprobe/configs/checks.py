@@ -56,6 +56,8 @@ RUN_FOLDER = FolderKind(
     fix="choose an empty or new folder, or an earlier run's folder to resume it",
 )
 """A run folder: the stages' folders, the run's config and ``live/`` (recordings of ``vlaprobe serve``)."""
+MAX_IMAGE_SIZE = 4096
+"""Largest render side (pixels) of ``--env.image-size``."""
 LIBERO_HORIZON = 1000
 """Simulator steps LIBERO's robosuite environment allows per reset (its ``horizon``), settling included: a
 longer episode fails with "executing action in terminated episode"."""
@@ -70,9 +72,15 @@ def _flag(prefix: str, name: str) -> str:
     return "--" + prefix + name.replace("_", "-")
 
 
+MAX_COUNT = 2**31 - 1
+"""Largest count any flag takes (steps, epochs, workers...): beyond it a value is a typo, not a plan."""
+
+
 def _at_least(value: int | None, low: int, flag: str, fix: str = "") -> None:
     if value is not None and value < low:
         raise VlaprobeError(f"{flag} must be at least {low}, got {value}{fix}")
+    if value is not None and value > MAX_COUNT:
+        raise VlaprobeError(f"{flag} must be at most {MAX_COUNT}, got {value}")
 
 
 def _between(value: float, low: float, high: float, flag: str, closed: bool = False) -> None:
@@ -129,6 +137,10 @@ def check_env(env: EnvConfig, prefix: str = "env.") -> None:
     """Simulator settings."""
     _at_least(env.max_steps, 1, _flag(prefix, "max_steps"))
     _at_least(env.image_size, 16, _flag(prefix, "image_size"))
+    if env.image_size > MAX_IMAGE_SIZE:
+        raise VlaprobeError(
+            f"{_flag(prefix, 'image_size')} must be at most {MAX_IMAGE_SIZE}, got {env.image_size}"
+        )
     _at_least(env.settle_steps, 0, _flag(prefix, "settle_steps"))
     check_step_budget(
         env.max_steps, env.settle_steps, _flag(prefix, "max_steps"), _flag(prefix, "settle_steps")
@@ -232,6 +244,11 @@ def check_atoms(cfg: AtomsConfig) -> None:
         )
     _at_least(cfg.init, 0, "--init")
     check_env(cfg.env)
+    from vlaprobe.envs.libero import _benchmark  # the init states are a file: no simulator needed
+
+    inits = len(_benchmark(cfg.env.suite).get_task_init_states(task if isinstance(task, int) else 0))
+    if cfg.init >= inits:
+        raise VlaprobeError(f"--init {cfg.init} does not exist; the task has init states 0-{inits - 1}")
 
 
 def check_report(cfg: ReportConfig, prefix: str = "") -> None:
