@@ -67,7 +67,7 @@ class Limits:
     replay_hz: float = 10.0
     default_driver: str = "expert"
     seed: int = 0
-    read_duty: float = 0.5
+    read_duty: float = 0.25
     """Most of the time episode reads may take while an episode runs (:class:`vlaprobe.live.rest.Reader`)."""
     ui: Path = field(default_factory=lambda: UI_FOLDER)
 

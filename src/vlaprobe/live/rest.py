@@ -47,7 +47,7 @@ class Reader:
         replays: StoreReplays | None,
         live: Callable[[], bool],
         *,
-        duty: float = 0.5,
+        duty: float = 0.25,
         limit: int = 32,
         cache_bytes: int = CACHE_BYTES,
     ) -> None:
