@@ -134,6 +134,8 @@ PATH_FLAGS = (
     "recordings",
     "model",
     "path",
+    "token-file",
+    "token_file",
 )
 """Flags (last dotted part) whose empty value would silently mean the current folder."""
 
