@@ -365,6 +365,8 @@ def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.Captu
         (["atoms", "--init", str(2**70)], "--init must be at most 2147483647"),
         (["collect", "--env.image-size", "100000", "--out", "OUT"], "--env.image-size must be at most 4096"),
         (["train", "--probe.epochs", str(2**70)], "--probe.epochs must be at most 2147483647"),
+        (["run", "--train.probe.device", "²", "--out", "OUT"], "--train.probe.device: unknown device '²'"),
+        (["tasks", "--env.image-size", "-1"], "--env.image-size must be at least 16"),
         (["serve", "--port", "70000"], "--port must be between 0 and 65535"),
         (["serve", "--port", "-1"], "--port must be between 0 and 65535"),
         (["serve", "--max-message-bytes", "-1"], "--max-message-bytes must be at least 1024"),

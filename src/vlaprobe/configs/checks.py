@@ -91,6 +91,16 @@ def _between(value: float, low: float, high: float, flag: str, closed: bool = Fa
         raise VlaprobeError(f"{flag} must be a number in {bounds}, got {value}")
 
 
+def check_device(name: str, flag: str) -> None:
+    """A torch device name the trainer can use (before a run collects for hours)."""
+    from vlaprobe.devices import resolve_device
+
+    try:
+        resolve_device(name)
+    except VlaprobeError as exc:
+        raise VlaprobeError(f"{flag}: {exc}") from None
+
+
 def check_seed(value: int, flag: str) -> None:
     """A seed every generator takes."""
     if not 0 <= value <= MAX_SEED:
@@ -124,6 +134,7 @@ def check_train(cfg: TrainConfig, prefix: str = "") -> None:
     if not (math.isfinite(p.weight_decay) and p.weight_decay >= 0):
         raise VlaprobeError(f"{f('probe.weight_decay')} must be 0 or a positive number, got {p.weight_decay}")
     _between(p.threshold, 0, 1, f("probe.threshold"))
+    check_device(p.device, f("probe.device"))
     _at_least(cfg.bootstrap, 0, f("bootstrap"))
     _at_least(cfg.auprc_bootstrap, 0, f("auprc_bootstrap"))
     if cfg.shuffled_control:
@@ -279,6 +290,8 @@ def check_run(cfg: RunConfig) -> None:
 
 
 def precheck(cfg: object) -> None:
-    """Checks the CLI runs before a command whose own function has none up front (``atoms``)."""
+    """Checks the CLI runs before a command whose own function has none up front (``atoms``, ``tasks``)."""
     if type(cfg).__name__ == "AtomsConfig":
         check_atoms(cfg)  # type: ignore[arg-type]
+    elif type(cfg).__name__ == "TasksConfig":
+        check_env(cfg.env)  # type: ignore[attr-defined]
