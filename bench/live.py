@@ -12,6 +12,9 @@ for 10 s does to the others.
   the same step loop run bare in this process, same task, init and step count (target >= 0.9).
 - ``slow_client_other_rate_ratio``: the other 7 clients' receive rate while one reads nothing for 10 s,
   over their rate just before (1.0 = unaffected); ``slow_client_lost_states`` must be 0.
+- ``store_reads_rate_ratio``: steps/s of a live episode while 8 clients (another process) fetch store episodes
+  and their frames in parallel, over the quiet rate of the same episode in the same run (quiet, loaded,
+  quiet, loaded, quiet; target >= 0.8); ``store_reads_per_s`` is what the 8 readers got meanwhile.
 
 Runs in ~2-3 minutes on 2 cores. Prints a final JSON line.
 """
@@ -19,6 +22,7 @@ Runs in ~2-3 minutes on 2 cores. Prints a final JSON line.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 import multiprocessing as mp
 import os
@@ -152,6 +156,113 @@ def with_clients(url: str, n: int, begin: Any, start: str | None = None, pause_a
     return out
 
 
+# -- store readers (in another process, 8 threads) -------------------------------------------------
+def readers_main(base: str, ids: list[str], n: int, started: Any, stop: Any, results: Any) -> None:
+    """``n`` threads, each fetching store episodes (whole, then 4 frames) in a loop until ``stop``."""
+    import urllib.error
+    import urllib.request
+
+    counts = {"episodes": 0, "frames": 0, "busy": 0, "failed": 0}
+    lock = threading.Lock()
+
+    def fetch(url: str) -> int:
+        try:
+            with urllib.request.urlopen(url, timeout=600) as r:
+                r.read()
+                return r.status
+        except urllib.error.HTTPError as exc:
+            return exc.code
+        except OSError:  # refused or timed out: counted as failed
+            return 0
+
+    def reader(i: int) -> None:
+        k = i
+        while not stop.is_set():
+            eid = ids[k % len(ids)]
+            k += 1
+            status = fetch(f"{base}/api/episodes/{eid}")
+            with lock:
+                counts["episodes" if status == 200 else "busy" if status == 503 else "failed"] += 1
+            if i == 0 and counts["episodes"] == 1:
+                started.set()
+            for t in (0, 5, 10, 15):
+                status = fetch(f"{base}/api/episodes/{eid}/frames/{t}")
+                with lock:
+                    counts["frames" if status == 200 else "busy" if status == 503 else "failed"] += 1
+
+    threads = [threading.Thread(target=reader, args=(i,)) for i in range(n)]
+    t0 = time.monotonic()
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    results.put({**counts, "seconds": time.monotonic() - t0})
+
+
+def synthetic_store(
+    path: Path, frame: np.ndarray, atoms: dict, obj: np.ndarray, act: np.ndarray, goal: Any
+) -> list[str]:
+    """A store of 16 LIBERO-shaped episodes (150 steps, real frame and atoms, tiny-model hidden states)."""
+
+    from vlaprobe.collection.store import EpisodeInfo, episode_key
+    from vlaprobe.collection.writer import StoreWriter
+
+    meta = {
+        "atom_names": atoms, "model_id": "tiny-openvla-seed0", "model": {"name": "tiny"}, "num_hidden_states": 33,
+        "hidden_size": 64, "pooling": "last_prompt", "driver": "expert", "suite": "libero_spatial",
+        "env": {"image_size": 256}, "seed": 0,
+    }  # fmt: skip
+    rng = np.random.default_rng(2)
+    length = 150
+    with StoreWriter.open(path, meta) as w:
+        for init in range(16):
+            o = np.repeat(obj[None], length, 0)
+            o[rng.integers(length, size=20), rng.integers(len(obj), size=20)] ^= True
+            arrays = {
+                "hidden": rng.standard_normal((33, length, 64)).astype(np.float16),
+                "object_atoms": o, "action_atoms": np.repeat(act[None], length, 0),
+                "image": np.repeat(frame[None], length, 0), "action": rng.uniform(-1, 1, (length, 7)).astype(np.float32),
+                "predicted_action": rng.uniform(-1, 1, (length, 7)).astype(np.float32),
+                "step": np.arange(length, dtype=np.int32),
+            }  # fmt: skip
+            info = EpisodeInfo(episode_key(0, init), 0, init, 0, False, length, seed=init, driver="expert")
+            w.write_episode(info, arrays, {"instruction": "bench", "goal": dataclasses.asdict(goal)})
+    return ["store-" + episode_key(0, init) for init in range(16)]
+
+
+def store_reads_case(url: str, base: str, ids: list[str], start: str, wait_idle: Any) -> dict:
+    """The live step rate quiet and while 8 clients fetch store episodes, alternated in one run."""
+    ctx = mp.get_context("spawn")
+
+    def live_rate() -> float:
+        rows = with_clients(url, 1, None, start=start)
+        wait_idle()
+        ready = sorted({r[0]: r[4] for r in rows[0]}.items())
+        return (len(ready) - 2) / (ready[-1][1] - ready[1][1])
+
+    quiet, loaded, reads = [live_rate()], [], []
+    for _ in range(2):
+        started, stop, results = ctx.Event(), ctx.Event(), ctx.Queue()
+        proc = ctx.Process(target=readers_main, args=(base, ids, 8, started, stop, results))
+        proc.start()
+        started.wait(300)
+        loaded.append(live_rate())
+        stop.set()
+        reads.append(results.get(timeout=600))
+        proc.join(60)
+        quiet.append(live_rate())
+    ratios = [x / statistics.mean(quiet[i : i + 2]) for i, x in enumerate(loaded)]
+    per_s = [r["episodes"] / r["seconds"] for r in reads]
+    return {
+        "store_reads_rate_ratio": round(statistics.mean(ratios), 3),
+        "store_reads_live_steps_per_s": [round(x, 2) for x in loaded],
+        "store_reads_quiet_steps_per_s": [round(x, 2) for x in quiet],
+        "store_reads_per_s": round(statistics.mean(per_s), 2),
+        "store_reads_busy": sum(r["busy"] for r in reads),
+        "store_reads_failed": sum(r["failed"] for r in reads),
+    }
+
+
 def latency(rows: dict) -> tuple[float, float]:
     lat = np.array([r[1] for v in rows.values() for r in v])
     return round(float(np.percentile(lat, 50)), 2), round(float(np.percentile(lat, 95)), 2)
@@ -195,8 +306,11 @@ def main() -> None:
 
     cognition_ms = median_ms(cog_step, 300)
 
-    # the server: real engine (tiny model, LIBERO, random probes of the tiny model's shapes)
+    # the server: real engine (tiny model, LIBERO, random probes of the tiny model's shapes, a store)
     probes = random_probes(cfg.probes, "tiny-openvla-seed0", 33, 64, atoms)
+    frame = np.ascontiguousarray(first.image[::-1, ::-1][16:240, 16:240])
+    store_ids = synthetic_store(tmp / "store", frame, atoms, obj, act, env.goal)
+    cfg = dataclasses.replace(cfg, store=tmp / "store")
     engine = build_engine(cfg, probes)
     app = create_app(engine, limits_of(cfg, None))
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning"))
@@ -207,7 +321,6 @@ def main() -> None:
     url = f"ws://127.0.0.1:{port}/ws"
     session = app.state.session
     spec = EpisodeSpec(0, env.instruction, 0, "synthetic", STEPS_FAST, "live", env.goal, atoms)
-    frame = np.ascontiguousarray(first.image[::-1, ::-1][16:240, 16:240])
 
     def synthetic(steps: int) -> Any:
         return lambda: session.start(
@@ -252,6 +365,7 @@ def main() -> None:
         lives.append((len(ready) - 2) / (ready[-1][1] - ready[1][1]))
         bares.append(bare())
     ratios = [live / statistics.mean(bares[i : i + 2]) for i, live in enumerate(lives)]
+    store_reads = store_reads_case(url, f"http://127.0.0.1:{port}", store_ids, start, wait_idle)
     server.should_exit = True
     result = {
         "probe_ms": round(probe_ms, 4),
@@ -270,6 +384,7 @@ def main() -> None:
         "slow_client_other_rate_ratio": round(statistics.mean(during) / statistics.mean(before), 3),
         "slow_client_lost_states": 600 - len(rs[0]),
         "slow_client_images_after_pause": int(slow_images),
+        **store_reads,
         "steps_per_client": {"fast": STEPS_FAST, "hz": HZ_FAST, "live": STEPS_LIVE},
         "load_average_1min": round(os.getloadavg()[0], 2),
         "cpus": os.cpu_count(),

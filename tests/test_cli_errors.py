@@ -11,10 +11,12 @@ import pytest
 from tests.collection.test_store import write
 
 from vlaprobe.cli import main
+from vlaprobe.configs.checks import REPORT_FOLDER
 from vlaprobe.configs.report import ReportConfig
 from vlaprobe.configs.run import RunConfig
 from vlaprobe.configs.train import ProbeConfig, SplitConfig, TrainConfig
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import check_owned_folder
 from vlaprobe.pipeline import run
 from vlaprobe.probes import ProbeSet
 from vlaprobe.probes import train as train_module
@@ -111,7 +113,7 @@ def test_outputs_refuse_folders_holding_something_else(
 ) -> None:
     run_folder = store.parent
     err = one_line_error(capsys, ["train", "--store", str(store), "--out", str(run_folder)])
-    assert "holds other files than probes (activations)" in err
+    assert "holds files `vlaprobe train` did not write (activations)" in err
     err = one_line_error(capsys, ["save-tiny", "--out", str(store)])
     assert "holds other files" in err
     assert not (store / "model.safetensors").exists()
@@ -131,7 +133,7 @@ TRAIN_RANGES = [
     (["--seed", "-1"], "--seed must be between 0"),
     (["--seed", str(2**70)], "--seed must be between 0"),
     (["--bootstrap", "-5"], "--bootstrap must be at least 0"),
-    (["--probe.epochs", "0", "--probe.min-updates", "0"], "untrained probes"),
+    (["--probe.epochs", "0"], "--probe.epochs must be at least 1"),
     (["--heads"], "--heads needs at least one head"),
     (
         ["--min-frequency", "0.5", "--max-frequency", "0.2"],
@@ -348,3 +350,98 @@ def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.Captu
     a_file.write_text("x")
     err = one_line_error(capsys, ["serve", "--probes", str(tmp_path / "none"), "--recordings", str(a_file)])
     assert f"--recordings {a_file} is a file, not a folder" in err
+
+
+# ----- issue 20: the inputs that still crashed or were silently accepted --------------------------------------
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["atoms", "--task", "²"], "--task '²' is neither a task index nor an instruction"),
+        (["atoms", "--task", "①"], "neither a task index nor an instruction"),
+        (["atoms", "--task", "0", "--env.image-size", "-5"], "--env.image-size must be at least 16"),
+        (["atoms", "--env.settle-steps", "-1"], "--env.settle-steps must be at least 0"),
+        (["atoms", "--init", "-1"], "--init must be at least 0"),
+        (["atoms", "--init", "99"], "--init 99 does not exist; the task has init states 0-49"),
+        (["atoms", "--init", str(2**70)], "--init must be at most 2147483647"),
+        (["collect", "--env.image-size", "100000", "--out", "OUT"], "--env.image-size must be at most 4096"),
+        (["train", "--probe.epochs", str(2**70)], "--probe.epochs must be at most 2147483647"),
+        (["run", "--train.probe.device", "²", "--out", "OUT"], "--train.probe.device: unknown device '²'"),
+        (["tasks", "--env.image-size", "-1"], "--env.image-size must be at least 16"),
+        (["serve", "--port", "70000"], "--port must be between 0 and 65535"),
+        (["serve", "--port", "-1"], "--port must be between 0 and 65535"),
+        (["serve", "--max-message-bytes", "-1"], "--max-message-bytes must be at least 1024"),
+        (["serve", "--replay-hz", "0.001"], "--replay-hz must be a number in [0.5, 60]"),
+        (["serve", "--env.max-steps", "3000"], "--env.max-steps 3000 is more than the simulator runs"),
+        (["serve", "--token-file", "NONE"], "is not a file"),
+        (["train", "--probe.epochs", "0"], "--probe.epochs must be at least 1"),
+        (["collect", "--env.max-steps", "1200", "--out", "OUT"], "use at most 990"),
+        (
+            ["collect", "--env.max-steps", "995", "--env.settle-steps", "20", "--out", "OUT"],
+            "use at most 980",
+        ),
+        (["run", "--collect.env.max-steps", "1200", "--out", "OUT"], "--collect.env.max-steps 1200 is more"),
+    ],
+)
+def test_issue20_options_are_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: list[str], message: str
+) -> None:
+    subst = {"OUT": str(tmp_path / "out"), "NONE": str(tmp_path / "none")}
+    argv = [subst.get(a, a) for a in argv]
+    if argv[0] == "serve":
+        argv += ["--probes", str(tmp_path / "probes")]  # none there: the options fail first
+    assert message in one_line_error(capsys, argv)
+    assert not (tmp_path / "out").exists()
+
+
+def test_config_files_that_crashed_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    binary = tmp_path / "c.json"
+    binary.write_bytes(bytes(range(256)))
+    assert "is not text" in one_line_error(capsys, ["train", "--config", str(binary)])
+    bad = tmp_path / "c.yaml"
+    bad.write_text("store: [1, 2\nout: 3\n")  # YAML's message spans several lines
+    assert "cannot parse config file" in one_line_error(capsys, ["train", "--config", str(bad)])
+
+
+def test_info_on_a_store_without_atom_names(store: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    meta = json.loads((store / "zarr.json").read_text())
+    del meta["attributes"]["atom_names"]
+    (store / "zarr.json").write_text(json.dumps(meta))
+    assert "lacks atom_names" in one_line_error(capsys, ["info", str(store)])
+
+
+def test_report_and_run_refuse_a_folder_of_someone_elses_files(
+    store: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    probes = store.parent / "probes"
+    train_module.train_probes(TrainConfig(store=store, out=probes, **FAST))
+    mine = store.parent / "mine"
+    mine.mkdir()
+    (mine / "index.html").write_text("my page")
+    (mine / "tables.json").write_text("{}")
+    before = folder_bytes(mine)
+    err = one_line_error(capsys, ["report", "--probes", str(probes), "--out", str(mine)])
+    assert "holds files `vlaprobe report` did not write (index.html, tables.json)" in err
+    err = one_line_error(capsys, ["run", "--out", str(mine)])
+    assert "holds files `vlaprobe run` did not write" in err
+    assert folder_bytes(mine) == before
+    assert main(["report", "--probes", str(probes), "--out", str(store.parent / "report")]) == 0
+    check_owned_folder(store.parent / "report", REPORT_FOLDER)  # its own folder: written again
+
+
+@pytest.mark.parametrize("damage", ["missing object_atoms chunk", "corrupt hidden chunk"])
+def test_monitor_refuses_a_damaged_store(
+    store: Path, capsys: pytest.CaptureFixture[str], damage: str
+) -> None:
+    probes = store.parent / "probes"
+    train_module.train_probes(TrainConfig(store=store, out=probes, **FAST))
+    episodes = sorted(p for p in (store / "episodes").iterdir() if p.is_dir())
+    array = "object_atoms" if "object" in damage else "hidden"
+    chunks = [c for e in episodes for c in (e / array).rglob("*") if c.is_file() and c.name != "zarr.json"]
+    if "missing" in damage:
+        chunks[0].unlink()
+    else:
+        for c in chunks:
+            c.write_bytes(b"not a chunk" * 8)
+    argv = ["monitor", "--store", str(store), "--probes", str(probes), "--all-episodes"]
+    err = one_line_error(capsys, argv)
+    assert "damaged episode" in err and "rerun `vlaprobe collect`" in err

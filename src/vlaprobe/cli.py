@@ -21,6 +21,7 @@ from typing import Annotated, Any
 import tyro
 
 from vlaprobe.commands import COMMANDS, Command
+from vlaprobe.configs.checks import precheck
 from vlaprobe.errors import VlaprobeError
 
 CONFIG_HELP = (
@@ -34,7 +35,12 @@ def _load_config_file(path: Path, cls: type) -> Any:
     if not path.is_file():
         what = f"{path} is a folder, not a file" if path.is_dir() else f"not found: {path}"
         raise VlaprobeError(f"config file {what}; pass an existing .json or .yaml file to --config")
-    text = path.read_text()
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        raise VlaprobeError(
+            f"config file {path} is not text (not UTF-8); pass a .json or .yaml file to --config"
+        ) from None
     try:
         if path.suffix in (".yaml", ".yml"):
             import yaml
@@ -43,7 +49,10 @@ def _load_config_file(path: Path, cls: type) -> Any:
         else:
             data = json.loads(text)
     except Exception as exc:
-        raise VlaprobeError(f"cannot parse config file {path}: {exc}; fix the file or pass another") from None
+        reason = " ".join(str(exc).split())  # YAML's errors span several lines (with a pointer): one line
+        raise VlaprobeError(
+            f"cannot parse config file {path}: {reason}; fix the file or pass another"
+        ) from None
     if not isinstance(data, dict):
         raise VlaprobeError(f"config file {path} must hold a mapping of field names to values")
     if cls.__name__ != "RunConfig" and {"collect", "train", "report"} <= set(data):
@@ -125,6 +134,8 @@ PATH_FLAGS = (
     "recordings",
     "model",
     "path",
+    "token-file",
+    "token_file",
 )
 """Flags (last dotted part) whose empty value would silently mean the current folder."""
 
@@ -167,6 +178,7 @@ def main(argv: list[str] | None = None) -> int:
                 f"unknown command {name!r}; the commands are {', '.join(COMMANDS)} (see `vlaprobe --help`)"
             )
         cfg = _parse_command(name, COMMANDS[name], args[1:])
+        precheck(cfg)
         result = COMMANDS[name].function()(cfg)
         return int(result) if isinstance(result, int) and not isinstance(result, bool) else 0
     except VlaprobeError as exc:

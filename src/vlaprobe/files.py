@@ -6,6 +6,7 @@ import os
 import sys
 import tempfile
 from collections.abc import Callable
+from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
@@ -20,11 +21,14 @@ def _file_mode() -> int:
     return 0o666 & ~mask
 
 
-def write_atomic(path: str | Path, data: bytes | str | Callable[[str], object]) -> None:
+def write_atomic(
+    path: str | Path, data: bytes | str | Callable[[str], object], mode: int | None = None
+) -> None:
     """Write ``path`` under a temporary name in the same folder, then rename it into place.
 
     ``data`` is the content, or a function that writes the file whose path it is given (e.g. safetensors'
-    ``save_file``). A reader never sees a half-written file; a failure leaves no temporary behind.
+    ``save_file``). A reader never sees a half-written file; a failure leaves no temporary behind. ``mode``:
+    the file's permissions (default: as a new file under the umask).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -35,7 +39,7 @@ def write_atomic(path: str | Path, data: bytes | str | Callable[[str], object]) 
                 f.write(data.encode() if isinstance(data, str) else data)
         if callable(data):
             data(tmp)
-        os.chmod(tmp, _file_mode())
+        os.chmod(tmp, _file_mode() if mode is None else mode)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -83,3 +87,59 @@ def check_output_folder(out: str | Path, flag: str = "--out") -> None:
         raise VlaprobeError(
             f"{flag} {out}: cannot write in {parent} ({exc.strerror}); choose a writable folder"
         ) from None
+
+
+# -- output folders a command owns ------------------------------------------------------------------------
+OWNER_FILE = ".vlaprobe-owner"
+"""Marker that ``report`` and ``run`` leave in their output folder: the command's name. ``train``'s folder is
+recognised by its ``probes.json`` instead (a file of its own format)."""
+
+
+@dataclass(frozen=True)
+class FolderKind:
+    """What one command's output folder holds, for :func:`check_owned_folder`."""
+
+    owner: str
+    """The command that writes it ("train", "report", "run"): the marker's content."""
+    known: Callable[[str], bool] = lambda name: True
+    """Names (not starting with ".") the command writes there; others are refused even in its own folder."""
+    signature: Callable[[Path], bool] = lambda folder: False
+    """Recognises the command's folder without a marker: its own file format (``probes.json``), or a folder
+    written before markers existed."""
+    fix: str = "choose an empty or new folder"
+
+
+def folder_owner(out: Path) -> str | None:
+    """The command named by ``out``'s marker (None: no readable marker)."""
+    try:
+        return (out / OWNER_FILE).read_text(encoding="utf-8").strip() or None
+    except (OSError, UnicodeDecodeError):
+        return None
+
+
+def check_owned_folder(out: str | Path, kind: FolderKind, flag: str = "--out") -> None:
+    """Refuse (one line, before any work) an ``out`` that cannot be written or holds files ``kind.owner`` did
+    not write: a folder with files is the command's only when its marker (or ``kind.signature``) says so, and
+    then only if every file is one the command writes. The one check of ``train``, ``report`` and ``run``."""
+    from vlaprobe.errors import VlaprobeError
+
+    out = Path(out)
+    check_output_folder(out, flag)
+    if not out.is_dir():
+        return
+    names = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
+    if not names:
+        return
+    owner = folder_owner(out)
+    ours = owner == kind.owner or (owner is None and kind.signature(out))
+    foreign = [n for n in names if not kind.known(n)] if ours else names
+    if foreign:
+        shown = ", ".join(foreign[:4]) + (", ..." if len(foreign) > 4 else "")
+        raise VlaprobeError(
+            f"{flag} {out} holds files `vlaprobe {kind.owner}` did not write ({shown}); {kind.fix}"
+        )
+
+
+def mark_folder(out: str | Path, owner: str) -> None:
+    """Leave ``owner``'s marker in ``out`` (created if needed): the folder is the command's from now on."""
+    write_atomic(Path(out) / OWNER_FILE, owner + "\n")

@@ -8,9 +8,9 @@ import time
 from pathlib import Path
 
 from vlaprobe.configs import config_to_dict
-from vlaprobe.configs.checks import check_run
+from vlaprobe.configs.checks import REPORT_FOLDER, RUN_FOLDER, check_run
 from vlaprobe.configs.run import RunConfig
-from vlaprobe.files import check_output_folder, write_atomic
+from vlaprobe.files import check_owned_folder, mark_folder, write_atomic
 from vlaprobe.probes.outfolder import check_probe_folder
 
 
@@ -41,9 +41,11 @@ def run(cfg: RunConfig) -> Path:
     from vlaprobe.reports.report import write_report
 
     check_run(cfg)
-    check_output_folder(cfg.out)
+    check_owned_folder(cfg.out, RUN_FOLDER)
     cfg = stage_configs(cfg)
     check_probe_folder(cfg.train.out, "--out")
+    check_owned_folder(cfg.report.out, REPORT_FOLDER, "--out")
+    mark_folder(cfg.out, RUN_FOLDER.owner)
     print(f"[1/4] collect → {cfg.collect.out}", flush=True)
     t0 = time.perf_counter()
     collect(cfg.collect)

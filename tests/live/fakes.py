@@ -122,6 +122,20 @@ def fake_app(tmp: Path, limits: Limits | None = None, **kw: Any) -> Any:
     return create_app(fake_engine(tmp, **kw), limits or Limits(image_hz=1000.0))
 
 
+def local_client(app: Any) -> Any:
+    """Starlette's test client, sending ``Host: 127.0.0.1`` (the server refuses other hosts; the plain test
+    client says "testserver", and its WebSocket connects always do)."""
+    from fastapi.testclient import TestClient
+
+    class Local(TestClient):
+        def websocket_connect(self, url: str, *args: Any, **kw: Any) -> Any:
+            return super().websocket_connect(
+                "ws://127.0.0.1" + url if url.startswith("/") else url, *args, **kw
+            )
+
+    return Local(app, base_url="http://127.0.0.1")
+
+
 def serve_config(tmp: Path, **kw: Any) -> ServeConfig:
     return ServeConfig(probes=tmp / "probes", recordings=tmp / "live", **kw)
 

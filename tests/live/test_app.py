@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
-from tests.live.fakes import FAIL_INIT, SUCCESS_INIT, episode_length, fake_app, fakes
+from tests.live.fakes import FAIL_INIT, SUCCESS_INIT, episode_length, fake_app, fakes, local_client
 
 from vlaprobe.live import protocol as P
 from vlaprobe.live.app import Limits
@@ -35,7 +35,7 @@ def start(task: int = 0, init: int = SUCCESS_INIT, **kw: Any) -> str:
 
 @pytest.fixture
 def client(tmp_path: Path) -> Any:
-    with TestClient(fake_app(tmp_path)) as c:
+    with local_client(fake_app(tmp_path)) as c:
         yield c
 
 
@@ -66,7 +66,7 @@ def test_hello_then_a_whole_episode_in_order(client: TestClient) -> None:
 
 
 def test_second_start_is_refused_and_episode_goes_on(client: TestClient, tmp_path: Path) -> None:
-    app_client = TestClient(fake_app(tmp_path / "slow", step_seconds=0.05))
+    app_client = local_client(fake_app(tmp_path / "slow", step_seconds=0.05))
     with app_client, app_client.websocket_connect("/ws") as ws:
         ws.receive_text()
         ws.send_text(start(init=FAIL_INIT, max_steps=8))
@@ -130,7 +130,7 @@ def test_paper_client_bare_instruction(client: TestClient) -> None:
 
 
 def test_stop_pause_resume_drop(tmp_path: Path) -> None:
-    with TestClient(fake_app(tmp_path, step_seconds=0.02)) as c, c.websocket_connect("/ws") as ws:
+    with local_client(fake_app(tmp_path, step_seconds=0.02)) as c, c.websocket_connect("/ws") as ws:
         ws.receive_text()
         ws.send_text(start(init=FAIL_INIT, max_steps=30))
         receive_until(ws, "step")
@@ -161,7 +161,7 @@ def test_drop_is_announced_step_by_step(tmp_path: Path) -> None:
 
 def test_pause_is_announced_to_every_client_and_to_late_joiners(tmp_path: Path) -> None:
     with (
-        TestClient(fake_app(tmp_path, step_seconds=0.02)) as c,
+        local_client(fake_app(tmp_path, step_seconds=0.02)) as c,
         c.websocket_connect("/ws") as a,
         c.websocket_connect("/ws") as b,
     ):
@@ -185,7 +185,7 @@ def test_pause_is_announced_to_every_client_and_to_late_joiners(tmp_path: Path) 
 
 
 def test_join_mid_episode_gets_history_first(tmp_path: Path) -> None:
-    with TestClient(fake_app(tmp_path, step_seconds=0.03)) as c, c.websocket_connect("/ws") as a:
+    with local_client(fake_app(tmp_path, step_seconds=0.03)) as c, c.websocket_connect("/ws") as a:
         a.receive_text()
         a.send_text(start(init=FAIL_INIT, max_steps=20))
         receive_until(a, "step")
@@ -203,12 +203,12 @@ def test_join_mid_episode_gets_history_first(tmp_path: Path) -> None:
 
 
 def test_rest_lists_and_serves_recordings_after_restart(tmp_path: Path) -> None:
-    with TestClient(fake_app(tmp_path)) as c, c.websocket_connect("/ws") as ws:
+    with local_client(fake_app(tmp_path)) as c, c.websocket_connect("/ws") as ws:
         ws.receive_text()
         ws.send_text(start())
         msgs = receive_until(ws, "episode_end")
     eid = msgs[0]["episode_id"]
-    with TestClient(fake_app(tmp_path)) as c:  # a new server on the same recordings folder
+    with local_client(fake_app(tmp_path)) as c:  # a new server on the same recordings folder
         items = c.get("/api/episodes").json()
         assert [i["id"] for i in items] == [eid]
         assert items[0]["success"] is True and items[0]["steps"] == episode_length(0, SUCCESS_INIT)
@@ -226,7 +226,7 @@ def test_rest_lists_and_serves_recordings_after_restart(tmp_path: Path) -> None:
 
 def test_token_and_origin(tmp_path: Path) -> None:
     limits = Limits(token="s3cret", image_hz=1000.0)
-    with TestClient(fake_app(tmp_path, limits)) as c:
+    with local_client(fake_app(tmp_path, limits)) as c:
         assert c.get("/api/episodes").status_code == 401
         assert c.get("/api/episodes?token=wrong").status_code == 401
         assert c.get("/api/episodes", headers={"Authorization": "Bearer s3cret"}).status_code == 200
@@ -244,7 +244,7 @@ def test_token_and_origin(tmp_path: Path) -> None:
 
 
 def test_ui_page_when_not_built(tmp_path: Path) -> None:
-    with TestClient(fake_app(tmp_path, Limits(ui=tmp_path / "none"))) as c:
+    with local_client(fake_app(tmp_path, Limits(ui=tmp_path / "none"))) as c:
         r = c.get("/")
     assert r.status_code == 200 and "not built" in r.text
 
@@ -254,7 +254,7 @@ def test_ui_folder_is_served(tmp_path: Path) -> None:
     (ui / "assets").mkdir(parents=True)
     (ui / "index.html").write_text("<!doctype html><div id=root></div>")
     (ui / "assets" / "app.js").write_text("console.log(1)")
-    with TestClient(fake_app(tmp_path, Limits(ui=ui))) as c:
+    with local_client(fake_app(tmp_path, Limits(ui=ui))) as c:
         assert "root" in c.get("/").text
         assert c.get("/assets/app.js").text == "console.log(1)"
         assert c.get("/api/episodes").status_code == 200

@@ -7,8 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
-from tests.live.fakes import SUCCESS_INIT, real_engine
+from tests.live.fakes import SUCCESS_INIT, local_client, real_engine
 
 from vlaprobe.cognition.monitor import monitor
 from vlaprobe.cognition.readout import ProbeReadout
@@ -38,7 +37,7 @@ def test_store_replay_equals_monitor(fake_run: Path, tmp_path: Path) -> None:
             )
         ).per_episode
     }
-    with TestClient(real_app(fake_run, tmp_path)) as c:
+    with local_client(real_app(fake_run, tmp_path)) as c:
         items = [i for i in c.get("/api/episodes").json() if i["source"] == "store"]
         assert {i["id"] for i in items} == {"store-" + e.key for e in store.episodes()}
         for item in items:
@@ -66,7 +65,7 @@ def test_store_replay_equals_monitor(fake_run: Path, tmp_path: Path) -> None:
 
 
 def test_replay_streams_over_the_websocket(fake_run: Path, tmp_path: Path) -> None:
-    with TestClient(real_app(fake_run, tmp_path)) as c, c.websocket_connect("/ws") as ws:
+    with local_client(real_app(fake_run, tmp_path)) as c, c.websocket_connect("/ws") as ws:
         hello = json.loads(ws.receive_text())
         assert hello["model_id"] == "fake" and any(not p for p in hello["probes"]["probed"]["object"])
         eid = c.get("/api/episodes").json()[0]["id"]
@@ -91,7 +90,7 @@ def test_replay_streams_over_the_websocket(fake_run: Path, tmp_path: Path) -> No
 
 
 def test_live_episode_with_real_probes_and_cognition(fake_run: Path, tmp_path: Path) -> None:
-    with TestClient(real_app(fake_run, tmp_path)) as c, c.websocket_connect("/ws") as ws:
+    with local_client(real_app(fake_run, tmp_path)) as c, c.websocket_connect("/ws") as ws:
         ws.receive_text()
         ws.send_text(json.dumps({"type": "start", "task": 0, "init": SUCCESS_INIT}))
         msgs = []

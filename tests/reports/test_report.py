@@ -15,6 +15,7 @@ import torch
 from vlaprobe.configs.report import ReportConfig
 from vlaprobe.configs.train import TrainConfig
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import OWNER_FILE
 from vlaprobe.probes import synthetic_data, train_on_data
 from vlaprobe.reports import write_report
 
@@ -67,7 +68,7 @@ def test_default_location_and_files(report: dict) -> None:
     ):
         assert {f"{stem}.{ext}" for ext in ("png", "svg", "csv", "json")} <= names, stem
     assert {"index.html", "tables.json"} <= names
-    assert not [n for n in names if n.startswith(".")]  # no temp files left
+    assert not [n for n in names if n.startswith(".") and n != OWNER_FILE]  # no temp files left
 
 
 def test_images_have_valid_headers(report: dict) -> None:

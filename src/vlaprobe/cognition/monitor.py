@@ -170,6 +170,7 @@ def _ratio(a: float, b: float) -> float | None:
 def monitor(cfg: MonitorConfig) -> MonitorResult:
     """Run the cognition over the episodes on truth and on predictions; write ``monitor.json``."""
     from vlaprobe.collection.store import ActivationStore
+    from vlaprobe.collection.verify import require_intact
     from vlaprobe.files import check_output_folder
 
     if cfg.out is not None:
@@ -182,6 +183,7 @@ def monitor(cfg: MonitorConfig) -> MonitorResult:
                 f"the probes' {h} atoms differ from store {cfg.store}'s; pass the store the probes were trained on"
             )
     keys, held_out = _episodes(cfg, store, readout.meta)
+    require_intact(cfg.store, read=True, keys=keys)  # a missing chunk would read as fill values
     ccfg = cfg.cognition()
     cogs: dict[tuple[str, str], tuple[Cognition, Cognition]] = {}
     truth_v: Counter[str] = Counter()

@@ -119,7 +119,17 @@ def read_meta(path: Path, hint: str = "pass the --out folder of a `vlaprobe coll
             f"{path} is an activation store of format_version {version}, this vlaprobe reads version "
             f"{FORMAT_VERSION}; collect it again with this version or use the vlaprobe that wrote it"
         )
+    missing = [k for k in REQUIRED_META if k not in meta]
+    if missing or not isinstance(meta["atom_names"], dict):
+        raise VlaprobeError(
+            f"{path}/zarr.json lacks {', '.join(missing or ['atom_names as a mapping'])}: the store's metadata "
+            "were edited or damaged; restore that file or collect the store again"
+        )
     return meta
+
+
+REQUIRED_META = ("atom_names", "model_id", "num_hidden_states", "hidden_size", "pooling")
+"""Root attributes every reader needs."""
 
 
 def list_infos(folder: Path) -> list[EpisodeInfo]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Iterable
 from dataclasses import dataclass
 from itertools import product
 from pathlib import Path
@@ -149,16 +150,18 @@ def _read_all(path: Path, key: str, names: set[str]) -> str | None:
     return None
 
 
-def check_store(path: str | Path, read: bool = False) -> list[Damage]:
+def check_store(path: str | Path, read: bool = False, keys: Iterable[str] | None = None) -> list[Damage]:
     """Every damaged episode of the store at ``path`` (an empty list: none found).
 
     Checks each folder under ``episodes/``: its metadata, the presence and shapes of its arrays against the
     episode's length and the store's metadata, and that every chunk file of ``hidden`` (of every array for
     stores that write all chunks) exists. ``read`` also decodes every array: in older stores (no
     ``all_chunks_written``) it is the only check that finds a truncated chunk of an array other than
-    ``hidden``, and a missing one there is not found at all (zarr reads it as the fill value).
+    ``hidden``, and a missing one there is not found at all (zarr reads it as the fill value). ``keys``: decode
+    only these episodes (the ones a command is about to read); the cheap checks still cover every episode.
     """
     path = Path(path)
+    wanted = None if keys is None else set(keys)
     meta = read_meta(path)
     folder = path / "episodes"
     entries = (
@@ -184,7 +187,7 @@ def check_store(path: str | Path, read: bool = False) -> list[Damage]:
         problem, names = found[entry.name]
         if problem is None and common - names:
             problem = f"array(s) {', '.join(sorted(common - names))} missing"
-        if problem is None and read:
+        if problem is None and read and (wanted is None or entry.name in wanted):
             problem = _read_all(path, entry.name, names)
         if problem is not None:
             damage.append(Damage(entry.name, problem))
@@ -205,8 +208,9 @@ def repair_hint(path: str | Path, damage: list[Damage]) -> str:
     return f"delete them (rm -r {folders}{more}) and rerun `vlaprobe collect` with the same settings to record them again"
 
 
-def require_intact(path: str | Path, read: bool = False) -> None:
-    """Raise a one-line :class:`VlaprobeError` naming the damaged episodes and the repair, if any."""
-    damage = check_store(path, read=read)
+def require_intact(path: str | Path, read: bool = False, keys: Iterable[str] | None = None) -> None:
+    """Raise a one-line :class:`VlaprobeError` naming the damaged episodes and the repair, if any (``read``,
+    ``keys``: as :func:`check_store`; `monitor` and `serve --store` decode the episodes they read)."""
+    damage = check_store(path, read=read, keys=keys)
     if damage:
         raise VlaprobeError(f"{describe(path, damage)}; {repair_hint(path, damage)}")

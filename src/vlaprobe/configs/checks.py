@@ -8,9 +8,12 @@ prefix except in ``model-info`` (``--seed``, ``--model``).
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import FolderKind
 
 if TYPE_CHECKING:
     from vlaprobe.configs.collect import CollectConfig
@@ -19,19 +22,65 @@ if TYPE_CHECKING:
     from vlaprobe.configs.report import ReportConfig
     from vlaprobe.configs.run import RunConfig
     from vlaprobe.configs.serve import ServeConfig
+    from vlaprobe.configs.suite import AtomsConfig
     from vlaprobe.configs.train import TrainConfig
 
 MAX_SEED = 2**32 - 8
 """Seeds must fit numpy's and torch's generators with the offsets added per stage (split, probe, ...)."""
 
 
+REPORT_SUFFIXES = (".html", ".json", ".png", ".svg", ".csv")
+
+
+def _legacy_report(folder: Path) -> bool:
+    """A report folder written before markers: its page, its tables and at least one figure (png and svg)."""
+    names = {p.name for p in folder.iterdir() if not p.name.startswith(".")}
+    figures = {n[:-4] for n in names if n.endswith(".png")} & {n[:-4] for n in names if n.endswith(".svg")}
+    return {"index.html", "tables.json"} <= names and bool(figures)
+
+
+REPORT_FOLDER = FolderKind(
+    "report",
+    known=lambda name: name.endswith(REPORT_SUFFIXES),
+    signature=_legacy_report,
+    fix="choose an empty or new folder (the default is report/ beside the probes)",
+)
+"""The folder ``vlaprobe report`` writes: its page, tables and figures (png, svg, json, csv)."""
+RUN_FILES = frozenset({"activations", "probes", "report", "config.json", "live"})
+RUN_FOLDER = FolderKind(
+    "run",
+    known=lambda name: name in RUN_FILES,
+    signature=lambda folder: (
+        (folder / "activations" / "zarr.json").is_file() or (folder / "probes" / "probes.json").is_file()
+    ),
+    fix="choose an empty or new folder, or an earlier run's folder to resume it",
+)
+"""A run folder: the stages' folders, the run's config and ``live/`` (recordings of ``vlaprobe serve``)."""
+MAX_IMAGE_SIZE = 4096
+"""Largest render side (pixels) of ``--env.image-size``."""
+LIBERO_HORIZON = 1000
+"""Simulator steps LIBERO's robosuite environment allows per reset (its ``horizon``), settling included: a
+longer episode fails with "executing action in terminated episode"."""
+
+
+def step_limit(settle_steps: int) -> int:
+    """The largest step budget the simulator can run after ``settle_steps`` settling steps."""
+    return LIBERO_HORIZON - max(0, settle_steps)
+
+
 def _flag(prefix: str, name: str) -> str:
     return "--" + prefix + name.replace("_", "-")
+
+
+MAX_COUNT = 2**31 - 1
+"""Largest count any flag takes (steps, epochs, workers...): beyond it a value is a typo, not a plan."""
 
 
 def _at_least(value: int | None, low: int, flag: str, fix: str = "") -> None:
     if value is not None and value < low:
         raise VlaprobeError(f"{flag} must be at least {low}, got {value}{fix}")
+    if value is not None and value > MAX_COUNT:
+        raise VlaprobeError(f"{flag} must be at most {MAX_COUNT}, got {value}")
 
 
 def _between(value: float, low: float, high: float, flag: str, closed: bool = False) -> None:
@@ -40,6 +89,16 @@ def _between(value: float, low: float, high: float, flag: str, closed: bool = Fa
     if not (math.isfinite(value) and inside):
         bounds = f"[{low:g}, {high:g}]" if closed else f"({low:g}, {high:g})"
         raise VlaprobeError(f"{flag} must be a number in {bounds}, got {value}")
+
+
+def check_device(name: str, flag: str) -> None:
+    """A torch device name the trainer can use (before a run collects for hours)."""
+    from vlaprobe.devices import resolve_device
+
+    try:
+        resolve_device(name)
+    except VlaprobeError as exc:
+        raise VlaprobeError(f"{flag}: {exc}") from None
 
 
 def check_seed(value: int, flag: str) -> None:
@@ -68,18 +127,14 @@ def check_train(cfg: TrainConfig, prefix: str = "") -> None:
         _between(cfg.split.test_fraction, 0, 1, f("split.test_fraction"))
     p = cfg.probe
     _at_least(p.batch_size, 1, f("probe.batch_size"))
-    _at_least(p.epochs, 0, f("probe.epochs"))
+    _at_least(p.epochs, 1, f("probe.epochs"))
     _at_least(p.min_updates, 0, f("probe.min_updates"))
-    if p.epochs == 0 and p.min_updates == 0:
-        raise VlaprobeError(
-            f"{f('probe.epochs')} 0 with {f('probe.min_updates')} 0 would save untrained probes; "
-            "give one of them a positive value"
-        )
     if not (math.isfinite(p.lr) and p.lr > 0):
         raise VlaprobeError(f"{f('probe.lr')} must be a positive finite number, got {p.lr}")
     if not (math.isfinite(p.weight_decay) and p.weight_decay >= 0):
         raise VlaprobeError(f"{f('probe.weight_decay')} must be 0 or a positive number, got {p.weight_decay}")
     _between(p.threshold, 0, 1, f("probe.threshold"))
+    check_device(p.device, f("probe.device"))
     _at_least(cfg.bootstrap, 0, f("bootstrap"))
     _at_least(cfg.auprc_bootstrap, 0, f("auprc_bootstrap"))
     if cfg.shuffled_control:
@@ -93,7 +148,26 @@ def check_env(env: EnvConfig, prefix: str = "env.") -> None:
     """Simulator settings."""
     _at_least(env.max_steps, 1, _flag(prefix, "max_steps"))
     _at_least(env.image_size, 16, _flag(prefix, "image_size"))
+    if env.image_size > MAX_IMAGE_SIZE:
+        raise VlaprobeError(
+            f"{_flag(prefix, 'image_size')} must be at most {MAX_IMAGE_SIZE}, got {env.image_size}"
+        )
     _at_least(env.settle_steps, 0, _flag(prefix, "settle_steps"))
+    check_step_budget(
+        env.max_steps, env.settle_steps, _flag(prefix, "max_steps"), _flag(prefix, "settle_steps")
+    )
+
+
+def check_step_budget(
+    max_steps: int, settle_steps: int, flag: str, settle_flag: str = "--env.settle-steps"
+) -> None:
+    """A budget the simulator can run to its end (LIBERO's horizon counts the settling steps too)."""
+    limit = step_limit(settle_steps)
+    if max_steps > limit:
+        raise VlaprobeError(
+            f"{flag} {max_steps} is more than the simulator runs: LIBERO ends an episode after {LIBERO_HORIZON} "
+            f"steps including {settle_flag} {settle_steps}; use at most {limit}"
+        )
 
 
 def check_policy(policy: PolicyConfig, prefix: str = "") -> None:
@@ -137,10 +211,55 @@ def check_serve(cfg: ServeConfig) -> None:
     from vlaprobe.files import check_output_folder
 
     check_seed(cfg.seed, "--seed")
+    if not 0 <= cfg.port <= 65535:
+        raise VlaprobeError(f"--port must be between 0 and 65535 (0: any free port), got {cfg.port}")
     _at_least(cfg.post_success_steps, 0, "--post-success-steps")
+    _at_least(
+        cfg.max_message_bytes, MIN_MESSAGE_BYTES, "--max-message-bytes", " (a start command is ~100 bytes)"
+    )
+    _at_least(cfg.threads, 0, "--threads", " (0: the default)")
+    if not (math.isfinite(cfg.image_hz) and cfg.image_hz > 0):
+        raise VlaprobeError(f"--image-hz must be a positive number, got {cfg.image_hz}")
+    _between(cfg.replay_hz, REPLAY_HZ[0], REPLAY_HZ[1], "--replay-hz", closed=True)
     check_env(cfg.env)
     if cfg.recordings is not None:  # a folder the user named (the default sits beside the probes)
         check_output_folder(cfg.recordings, "--recordings")
+    if cfg.token is not None and cfg.token_file is not None:
+        raise VlaprobeError("--token and --token-file both given; pass one (or set $VLAPROBE_TOKEN)")
+    if cfg.token_file is not None and not cfg.token_file.is_file():
+        raise VlaprobeError(
+            f"--token-file {cfg.token_file} is not a file; write the secret into a file first"
+        )
+
+
+MIN_MESSAGE_BYTES = 1024
+"""Smallest ``--max-message-bytes``: every command of the protocol fits."""
+REPLAY_HZ = (0.5, 60.0)
+"""Replay pacing bounds, steps per second (``--replay-hz`` and a replay command's ``hz``)."""
+
+
+def check_atoms(cfg: AtomsConfig) -> None:
+    """The options of ``vlaprobe atoms``, before the simulator is built (a task is an index in plain digits or
+    an exact instruction: other digit characters such as "²" are neither)."""
+    from vlaprobe.envs.libero import suite_tasks
+
+    tasks = suite_tasks(cfg.env.suite)
+    task = cfg.task.strip() if isinstance(cfg.task, str) else cfg.task
+    if isinstance(task, str) and re.fullmatch(r"-?[0-9]{1,6}", task):
+        task = int(task)
+    if isinstance(task, int) and not 0 <= task < len(tasks):
+        raise VlaprobeError(f"--task {task} out of range; {cfg.env.suite} has tasks 0-{len(tasks) - 1}")
+    if isinstance(task, str) and task.lower() not in {text.lower() for _, text in tasks}:
+        raise VlaprobeError(
+            f"--task {task[:80]!r} is neither a task index nor an instruction of {cfg.env.suite}; see `vlaprobe tasks`"
+        )
+    _at_least(cfg.init, 0, "--init")
+    check_env(cfg.env)
+    from vlaprobe.envs.libero import _benchmark  # the init states are a file: no simulator needed
+
+    inits = len(_benchmark(cfg.env.suite).get_task_init_states(task if isinstance(task, int) else 0))
+    if cfg.init >= inits:
+        raise VlaprobeError(f"--init {cfg.init} does not exist; the task has init states 0-{inits - 1}")
 
 
 def check_report(cfg: ReportConfig, prefix: str = "") -> None:
@@ -168,3 +287,11 @@ def check_run(cfg: RunConfig) -> None:
             f"--train.split.folds {cfg.train.split.folds} needs at least that many episodes; this run keeps "
             f"{episodes}: lower --train.split.folds or collect more"
         )
+
+
+def precheck(cfg: object) -> None:
+    """Checks the CLI runs before a command whose own function has none up front (``atoms``, ``tasks``)."""
+    if type(cfg).__name__ == "AtomsConfig":
+        check_atoms(cfg)  # type: ignore[arg-type]
+    elif type(cfg).__name__ == "TasksConfig":
+        check_env(cfg.env)  # type: ignore[attr-defined]

@@ -28,15 +28,20 @@ class ServeConfig:
     """TCP port (the paper's UI connects to 6006)."""
     token: str | None = None
     """Secret that WebSocket connects (``?token=``) and REST calls (``Authorization: Bearer``) must present.
-    Default: $VLAPROBE_TOKEN. Required off loopback; optional on it."""
+    Default: $VLAPROBE_TOKEN. Required off loopback; optional on it. Prefer $VLAPROBE_TOKEN or --token-file:
+    a --token on the command line is visible to every local user in ``ps``."""
+    token_file: Path | None = None
+    """File holding the token (its first line), instead of --token."""
     origins: tuple[str, ...] = ()
-    """Browser Origins allowed besides the server's own address and localhost (e.g. "https://lab.example")."""
+    """Browser Origins allowed besides the server's own address and localhost (e.g. "https://lab.example");
+    their host names are also accepted in the Host header (any other name is refused: DNS rebinding)."""
     image_hz: float = 10.0
     """Most images per second sent to one client; intermediate frames are dropped, step states never."""
     replay_hz: float = 10.0
-    """Steps per second when a client replays a stored episode."""
+    """Steps per second when a client replays a stored episode (0.5-60)."""
     recordings: Path | None = None
-    """Folder of recorded live episodes (one folder per episode). Default: ``live`` beside the probe folder."""
+    """Folder of recorded live episodes (one folder per episode). Default: ``live`` beside the probe folder.
+    Recordings are private to the server's user: folders 700, files 600."""
     driver: Literal["expert", "policy"] = "expert"
     """Driver of episodes started without one (the paper's client): the scripted expert or the VLA itself."""
     object_layer: int | None = None
@@ -47,7 +52,7 @@ class ServeConfig:
     """Steps an episode goes on after success (the expert releases the object and lifts the arm), as in
     collection: the goal must hold for the cognition's debounce steps before it counts as reached."""
     max_message_bytes: int = 65536
-    """Largest client frame accepted; a larger one closes that connection (1009)."""
+    """Largest client frame accepted (at least 1024); a larger one closes that connection (1009)."""
     threads: int = 0
     """Torch threads; 0: one per two cores (the simulator needs the rest)."""
     seed: int = 0

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import time
 from collections import deque
 from collections.abc import Callable
@@ -23,6 +24,11 @@ from typing import Any, Protocol
 
 PRIVATE_LIMIT = 64
 """Control messages (errors, hello) kept per client; the oldest are dropped beyond this."""
+ERROR_BACKLOG = 32
+"""Unsent error replies kept per client: a client that sends bad frames faster than it reads the replies gets
+the first 32, then one error saying how many more were suppressed (docs/live.md)."""
+ERROR_PREFIX = '{"type":"error"'
+"""How an error reply's JSON text begins (pydantic's compact dump of ``ErrorMessage``)."""
 SEND_TIMEOUT = 60.0
 """Seconds one send may wait on a client that reads nothing before that client is closed (1008): it would
 otherwise keep an old episode's log alive for as long as its connection stays open."""
@@ -77,6 +83,12 @@ class Client:
     private: deque[str] = field(default_factory=lambda: deque(maxlen=PRIVATE_LIMIT))
     wake: asyncio.Event = field(default_factory=asyncio.Event)
     closed: bool = False
+    suppressed: int = 0
+    """Error replies not queued since the backlog was full (announced once it drains)."""
+
+
+def _errors_in(c: Client) -> int:
+    return sum(text.startswith(ERROR_PREFIX) for text in c.private)
 
 
 class Hub:
@@ -144,6 +156,24 @@ class Hub:
         c.private.append(text)
         c.wake.set()
 
+    def tell_error(self, c: Client, text: str) -> None:
+        """Queue an error reply for ``c`` alone, or count it as suppressed when ``ERROR_BACKLOG`` wait unsent."""
+        if _errors_in(c) >= ERROR_BACKLOG:
+            c.suppressed += 1
+            return
+        self.tell(c, text)
+
+    def _suppressed_notice(self, c: Client) -> str | None:
+        if not c.suppressed or _errors_in(c):
+            return None
+        n, c.suppressed = c.suppressed, 0
+        return json.dumps(
+            {
+                "type": "error",
+                "message": f"{n} more errors suppressed (bad frames sent faster than their replies were read)",
+            }
+        )
+
     async def _send(self, c: Client, text: str) -> None:
         try:
             await asyncio.wait_for(c.sink.send_text(text), self.send_timeout)
@@ -166,6 +196,10 @@ class Hub:
             sent = False
             while c.private:
                 await self._send(c, c.private.popleft())
+                sent = True
+            notice = self._suppressed_notice(c)
+            if notice is not None:
+                await self._send(c, notice)
                 sent = True
             cur = self.current
             if (c.log is None or c.end_sent) and cur is not None and cur is not c.log:

@@ -249,7 +249,8 @@ class StartCommand(_Model):
     init: int | Literal["random"] = "random"
     driver: Driver = "expert"
     max_steps: int | None = Field(default=None, ge=1, le=10_000)
-    """Step budget; null: the server's (--env.max-steps)."""
+    """Step budget; null: the server's (--env.max-steps). LIBERO runs at most 1000 steps per episode including
+    the settling steps (990 with the default 10): a larger budget is refused with an error."""
 
 
 class StopCommand(_Model):
@@ -275,8 +276,8 @@ class ReplayCommand(_Model):
 
     type: Literal["replay"] = "replay"
     episode_id: str
-    hz: float | None = Field(default=None, gt=0, le=1000)
-    """Steps per second; null: the server's --replay-hz."""
+    hz: float | None = Field(default=None, ge=0.5, le=60)
+    """Steps per second (0.5-60); null: the server's --replay-hz."""
 
 
 # -- REST -----------------------------------------------------------------------------------------

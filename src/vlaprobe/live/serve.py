@@ -12,12 +12,13 @@ import os
 import socket
 from collections.abc import Callable
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from vlaprobe import __version__
-from vlaprobe.configs.checks import check_serve
+from vlaprobe.configs.checks import check_serve, step_limit
 from vlaprobe.configs.serve import ServeConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.live import protocol as P
@@ -78,12 +79,28 @@ def _is_loopback(host: str) -> bool:
         return False
 
 
+def _token_from_file(path: Path) -> str:
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) else "not UTF-8 text"
+        raise VlaprobeError(f"cannot read --token-file {path} ({reason}); write the secret into it") from None
+    token = lines[0].strip() if lines else ""
+    if not token:
+        raise VlaprobeError(f"--token-file {path} is empty; write the secret on its first line")
+    return token
+
+
 def resolve_token(cfg: ServeConfig) -> str | None:
-    token = cfg.token or os.environ.get("VLAPROBE_TOKEN") or None
+    """The secret: --token, else the first line of --token-file, else $VLAPROBE_TOKEN (None: no token)."""
+    if cfg.token_file is not None:
+        token: str | None = _token_from_file(cfg.token_file)
+    else:
+        token = cfg.token or os.environ.get("VLAPROBE_TOKEN") or None
     if not _is_loopback(cfg.host) and not token:
         raise VlaprobeError(
-            f"--host {cfg.host} is reachable from other machines: set a secret with --token or VLAPROBE_TOKEN "
-            "(or bind 127.0.0.1)"
+            f"--host {cfg.host} is reachable from other machines: set a secret in $VLAPROBE_TOKEN or a "
+            "--token-file (or bind 127.0.0.1)"
         )
     return token
 
@@ -150,21 +167,11 @@ def build_engine(
         max_steps=cfg.env.max_steps,
         post_success_steps=cfg.post_success_steps,
         seed=cfg.seed,
+        step_limit=step_limit(cfg.env.settle_steps),
+        num_init_states=num_init_states,
         **extra,
     )
-    replays = None
-    if cfg.store is not None:
-        episodes = StoreEpisodes(cfg.store)
-        store_model = episodes.store.meta.get("model_id")
-        if store_model is not None:
-            probes.check(model_id=str(store_model))
-        for h in HEADS:
-            if episodes.atoms[h] != list(probes.meta["heads"][h]["atom_names"]):
-                raise VlaprobeError(
-                    f"the probes' {h} atoms differ from store {cfg.store}'s; pass the store the probes were "
-                    "trained on (--store) or its probes (--probes)"
-                )
-        replays = StoreReplays(episodes, make_builder)
+    replays = None if cfg.store is None else store_replays(cfg.store, probes, make_builder)
     atoms = {h: list(probes.meta["heads"][h]["atom_names"]) for h in HEADS}
     kept = {h: set(probes.atoms(h)) for h in HEADS}
     hello = P.Hello(
@@ -189,12 +196,26 @@ def build_engine(
     )
 
 
+def store_replays(store: Path, probes: Any, make_builder: Callable[..., StepBuilder]) -> StoreReplays:
+    """The store's episodes for replay: checked intact (the repair advice otherwise) and matching the probes."""
+    episodes = StoreEpisodes(store)
+    store_model = episodes.store.meta.get("model_id")
+    if store_model is not None:
+        probes.check(model_id=str(store_model))
+    for h in HEADS:
+        if episodes.atoms[h] != list(probes.meta["heads"][h]["atom_names"]):
+            raise VlaprobeError(
+                f"the probes' {h} atoms differ from store {store}'s; pass the store the probes were "
+                "trained on (--store) or its probes (--probes)"
+            )
+    return StoreReplays(episodes, make_builder)
+
+
 def limits_of(cfg: ServeConfig, token: str | None) -> Limits:
-    if cfg.image_hz <= 0 or cfg.replay_hz <= 0:
-        raise VlaprobeError("--image-hz and --replay-hz must be above 0")
     return Limits(
         token=token,
         origins=tuple(cfg.origins),
+        host=cfg.host,
         max_message_bytes=cfg.max_message_bytes,
         image_hz=cfg.image_hz,
         replay_hz=cfg.replay_hz,

@@ -11,7 +11,9 @@ checks between steps.
 from __future__ import annotations
 
 import base64
+import contextlib
 import queue
+import re
 import sys
 import threading
 import traceback
@@ -60,6 +62,25 @@ def encode_jpeg(image: np.ndarray, quality: int = 90) -> bytes:
     )
 
 
+_ABSOLUTE_PATH = re.compile(r"(?<![\w.:/~-])/(?:[^\s/'\"]+/)+")
+
+
+def public_message(exc: BaseException | str) -> str:
+    """One line for clients: the error's message without the server's absolute paths (only the last part of a
+    path is kept) and without a traceback."""
+    if isinstance(exc, OSError) and exc.strerror:
+        name = Path(str(exc.filename)).name if exc.filename else ""
+        text = f"episode failed: {exc.strerror}" + (
+            f" ({name}); check --recordings and the disk" if name else ""
+        )
+    elif isinstance(exc, BaseException):
+        text = str(exc) if isinstance(exc, VlaprobeError) else f"episode failed: {type(exc).__name__}: {exc}"
+    else:
+        text = exc
+    lines = text.strip().splitlines() or ["error"]
+    return _ABSOLUTE_PATH.sub("", lines[0])[:500]
+
+
 def new_episode_id(task: int, source: str) -> str:
     now = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S")
     return f"{now}-{source}-t{task:02d}-{uuid.uuid4().hex[:6]}"
@@ -71,6 +92,8 @@ class Run:
     source: str
     """"live" (the simulator) or "replay" (a stored episode)."""
     control: Any
+    on_error: Callable[[str], None] | None = None
+    """Tells the client that asked for the episode why it could not begin (other clients never saw it)."""
     done: threading.Event = field(default_factory=threading.Event)
 
 
@@ -100,9 +123,17 @@ class Session:
             self._on_exit()
 
     def start(
-        self, task: int, source: str, make_source: Callable[[], EpisodeSource], control: Any, record: bool
+        self,
+        task: int,
+        source: str,
+        make_source: Callable[[], EpisodeSource],
+        control: Any,
+        record: bool,
+        on_error: Callable[[str], None] | None = None,
     ) -> str:
-        """Start an episode; VlaprobeError if one is running. ``make_source`` runs in the episode thread."""
+        """Start an episode; VlaprobeError if one is running. ``make_source`` runs in the episode thread; if it
+        or the episode's start fails, ``on_error`` (on the event loop) gets the one-line reason, else every
+        client does."""
         with self._lock:
             if self.running is not None:
                 raise VlaprobeError(
@@ -110,7 +141,7 @@ class Session:
                 )
             if not self._thread.is_alive():
                 raise VlaprobeError("the server is shutting down; start the episode on the next one")
-            run = Run(new_episode_id(task, source), source, control)
+            run = Run(new_episode_id(task, source), source, control, on_error)
             self.running = run
             self._jobs.put((run, make_source, record))
         return run.episode_id
@@ -139,25 +170,41 @@ class Session:
                     recorder.step(msg.t, state, jpeg)
                 hub.threadsafe(hub.step, state, base64.b64encode(jpeg).decode("ascii"))
         except Exception as exc:
-            message = (
-                str(exc) if isinstance(exc, VlaprobeError) else f"episode failed: {type(exc).__name__}: {exc}"
-            )
+            message = public_message(exc)
             if not isinstance(exc, VlaprobeError):
                 traceback.print_exc(file=sys.stderr)
-            hub.threadsafe(hub.broadcast, P.ErrorMessage(message=message.splitlines()[0]).model_dump_json())
+            if not began and run.on_error is not None:
+                hub.threadsafe(run.on_error, message)  # a start that could not begin: its sender's error
+            else:
+                hub.threadsafe(hub.broadcast, P.ErrorMessage(message=message).model_dump_json())
             run.control.stop()
         finally:
-            try:
-                if builder is not None and began:
-                    end = builder.end_message(stopped=bool(run.control.stopped))
-                    if recorder is not None:
-                        recorder.end(end)
-                    hub.threadsafe(hub.end, end.model_dump_json())
-            finally:
+            self._close(run, builder if began else None, recorder)
+
+    def _close(self, run: Run, builder: StepBuilder | None, recorder: Recorder | None) -> None:
+        """Write the end, then announce it and free the session in ONE loop callback: a start sent the moment
+        a client reads ``episode_end`` is accepted, and a stop sent with it reaches the new episode."""
+        end_text = None
+        try:
+            if builder is not None:
+                end = builder.end_message(stopped=bool(run.control.stopped))
+                end_text = end.model_dump_json()
                 if recorder is not None:
+                    recorder.end(end)
+        except Exception:  # the recording's end could not be written: the episode still ends for clients
+            traceback.print_exc(file=sys.stderr)
+        finally:
+            if recorder is not None:
+                with contextlib.suppress(OSError):
                     recorder.close()
-                hub.threadsafe(self._finished, run)
-                run.done.set()
+
+            def over() -> None:
+                if end_text is not None:
+                    self.hub.end(end_text)
+                self._finished(run)
+
+            self.hub.threadsafe(over)
+            run.done.set()
 
     def close(self, timeout: float = 10.0) -> None:
         """Stop the running episode and end the episode thread (server shutdown)."""

@@ -9,6 +9,7 @@ images and hidden states going through the same probes and cognition.
 from __future__ import annotations
 
 import random
+import re
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -40,14 +41,20 @@ class Simulator:
         post_success_steps: int = 0,
         seed: int = 0,
         make_driver: MakeDriver = make_driver,
+        step_limit: int | None = None,
+        num_init_states: int | None = None,
     ) -> None:
+        """``step_limit``: the longest budget the simulator runs (LIBERO's horizon less the settling steps);
+        ``num_init_states``: per task, known up front (a bad init is then refused before the episode starts)."""
         self.policy, self.tasks = policy, tasks
         self._make_env, self._make_driver = make_env, make_driver
         self.max_steps, self.post_success_steps = max_steps, post_success_steps
+        self.step_limit = step_limit
         self._rng = random.Random(seed)
         self._env: Any = None
         self._lock = threading.Lock()
-        self.num_init_states = 0
+        self.num_init_states = num_init_states or 0
+        self._known_inits = num_init_states
 
     def env_for(self, task: int) -> Any:
         if self._env is None or self._env.task_index != task:
@@ -60,7 +67,7 @@ class Simulator:
 
     def resolve_task(self, task: int | str) -> int:
         """A task index from an index or an instruction (trimmed, any case); VlaprobeError if none fits."""
-        if isinstance(task, str) and task.strip().isdigit():
+        if isinstance(task, str) and re.fullmatch(r"[0-9]{1,6}", task.strip()):  # ASCII digits: "²" is text
             task = int(task.strip())
         if isinstance(task, int):
             if task not in self.tasks:
@@ -72,10 +79,23 @@ class Simulator:
                 return index
         raise VlaprobeError(f"unknown task instruction {task[:80]!r}; send one of hello.tasks or an index")
 
-    def source(self, task: int, init: int | str, driver: str, max_steps: int | None, seed: int) -> LiveSource:
-        """An episode to run (the simulator is built in the episode thread, on the first record)."""
+    def check_start(self, task: int, init: int | str, max_steps: int | None) -> None:
+        """Refuse, before the episode is queued, a start the simulator cannot run to its end."""
         if max_steps is not None and max_steps < 1:
             raise VlaprobeError(f"max_steps must be at least 1, got {max_steps}")
+        budget = max_steps or self.max_steps
+        if self.step_limit is not None and budget > self.step_limit:
+            raise VlaprobeError(
+                f"max_steps {budget} is more than the simulator runs (LIBERO ends an episode after 1000 steps "
+                f"including settling); use at most {self.step_limit}"
+            )
+        n = self._known_inits
+        if n and init != "random" and not 0 <= int(init) < n:
+            raise VlaprobeError(f'no init state {init} for task {task}; use 0..{n - 1} or "random"')
+
+    def source(self, task: int, init: int | str, driver: str, max_steps: int | None, seed: int) -> LiveSource:
+        """An episode to run (the simulator is built in the episode thread, on the first record)."""
+        self.check_start(task, init, max_steps)
         return LiveSource(self, task, init, driver, max_steps or self.max_steps, seed)
 
     def close(self) -> None:
@@ -146,9 +166,13 @@ class StoreEpisodes:
 
     def __init__(self, path: Path) -> None:
         from vlaprobe.collection.store import ActivationStore
+        from vlaprobe.collection.verify import require_intact
 
+        self.path = Path(path)
         self.store = ActivationStore.open(path)
+        require_intact(path)  # every episode's metadata and chunk files (cheap; decoding waits for a read)
         self.infos = {self.PREFIX + i.key: i for i in self.store.episodes()}
+        self._verified: set[str] = set()
         names = self.store.meta["atom_names"]
         self.atoms = {"object": list(names["object"]), "action": list(names["action"])}
         self.created = str(self.store.meta.get("created", ""))
@@ -174,12 +198,26 @@ class StoreEpisodes:
     def _attrs(self, key: str) -> dict[str, Any]:
         return dict(self.store.episode(key).attrs)
 
+    def verify(self, key: str) -> None:
+        """Decode an episode's chunks once before it is first read (``vlaprobe info --verify``'s check): a
+        damaged one is refused with the repair, never replayed on fill values."""
+        if key in self._verified:
+            return
+        from vlaprobe.collection.verify import require_intact
+
+        folder = self.path / "episodes" / key
+        if not folder.resolve().is_relative_to(self.path.resolve()):
+            raise VlaprobeError(f"stored episode {key} lies outside its store; collect it again")
+        require_intact(self.path, read=True, keys=[key])
+        self._verified.add(key)
+
     def spec(self, episode_id: str) -> EpisodeSpec:
         from vlaprobe.symbols import Goal
 
         info = self.infos.get(episode_id)
         if info is None:
             raise VlaprobeError(f"no stored episode {episode_id!r}; GET /api/episodes lists them")
+        self.verify(info.key)
         attrs = self._attrs(info.key)
         return EpisodeSpec(
             task=info.task,
@@ -200,6 +238,7 @@ class StoreEpisodes:
         info = self.infos.get(episode_id)
         if info is None or not 0 <= t < info.length:
             return None
+        self.verify(info.key)
         return np.asarray(self.store.episode(info.key)["image"][t])
 
 
@@ -225,7 +264,8 @@ class StoreSource:
                 if control.stopped:
                     return
             if self.hz:
-                time.sleep(max(0.0, next_at - time.monotonic()))
+                if not _sleep_until(next_at, control):
+                    return  # stopped while waiting
                 next_at = max(next_at + 1.0 / self.hz, time.monotonic() - 1.0)
             last = t == n - 1
             yield StoredStep(
@@ -239,3 +279,12 @@ class StoreSource:
                 success=info.success_step is not None and t >= info.success_step,
                 terminal=last,
             )
+
+
+def _sleep_until(when: float, control: EpisodeControl | None) -> bool:
+    """Wait until ``when`` (monotonic), waking every 50 ms to see a stop; False if stopped."""
+    while (left := when - time.monotonic()) > 0:
+        if control is not None and control.stopped:
+            return False
+        time.sleep(min(left, 0.05))
+    return control is None or not control.stopped

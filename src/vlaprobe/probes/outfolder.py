@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import check_output_folder
+from vlaprobe.files import FolderKind, check_owned_folder
 
 if TYPE_CHECKING:
     from vlaprobe.probes.data import ProbeData
@@ -30,19 +30,19 @@ PROBE_FILES = frozenset(
 """What a probe folder holds (``monitor.json`` is written there by ``vlaprobe monitor``)."""
 
 
+PROBES_FOLDER = FolderKind(
+    "train",
+    known=lambda name: name in PROBE_FILES,
+    signature=lambda folder: (folder / "probes.json").is_file(),
+    fix="choose an empty folder or an earlier probes folder (e.g. RUN/probes, not the run or store folder)",
+)
+"""A probe folder, recognised by its ``probes.json`` (:func:`vlaprobe.files.check_owned_folder`, the mechanism
+``report`` and ``run`` share; they leave a marker file as they have no file of their own format)."""
+
+
 def check_probe_folder(out: Path, flag: str = "--out") -> None:
     """Refuse (one line) an ``out`` that is a file, cannot be created, or holds more than a probe folder."""
-    check_output_folder(out, flag)
-    if out.is_dir():
-        foreign = sorted(
-            p.name for p in out.iterdir() if p.name not in PROBE_FILES and not p.name.startswith(".")
-        )
-        if foreign:
-            shown = ", ".join(foreign[:4]) + (", ..." if len(foreign) > 4 else "")
-            raise VlaprobeError(
-                f"{flag} {out} holds other files than probes ({shown}); choose an empty folder or an earlier "
-                "probes folder (e.g. RUN/probes, not the run or store folder)"
-            )
+    check_owned_folder(out, PROBES_FOLDER, flag)
 
 
 def _leftovers(out: Path) -> list[Path]:

@@ -26,9 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from vlaprobe.configs.checks import check_report
+from vlaprobe.configs.checks import REPORT_FOLDER, check_report
 from vlaprobe.configs.report import ReportConfig
-from vlaprobe.files import check_output_folder, write_atomic
+from vlaprobe.files import check_owned_folder, mark_folder, write_atomic
 from vlaprobe.probes.results import PARTS, Evaluation, HeadResult, arr, read_evaluation
 from vlaprobe.reports.figures import Rendered, Series, curves, heatmap, metric_label
 from vlaprobe.reports.page import Figure, render_page
@@ -45,9 +45,9 @@ def write_report(cfg: ReportConfig, sections: Sequence[Section] = ()) -> Path:
     for this probe folder (e.g. the cognition monitor's, when its data file exists)."""
     check_report(cfg)
     out = Path(cfg.out) if cfg.out is not None else Path(cfg.probes).parent / "report"
-    check_output_folder(out)
+    check_owned_folder(out, REPORT_FOLDER)  # a folder of someone else's files is never written into
     evaluation = read_evaluation(cfg.probes)
-    out.mkdir(parents=True, exist_ok=True)
+    mark_folder(out, REPORT_FOLDER.owner)
     layers = list(evaluation.layers)
     heads = evaluation.heads
     title = cfg.title or f"Probing {evaluation.model_id} ({evaluation.pooling} pooling)"
