@@ -147,7 +147,7 @@ def test_stop_pause_resume_drop(tmp_path: Path) -> None:
 
 def test_drop_is_announced_step_by_step(tmp_path: Path) -> None:
     """Each perturbed step says so, with the drop's steps still to come (the UI's drop indicator)."""
-    with TestClient(fake_app(tmp_path, step_seconds=0.02)) as c, c.websocket_connect("/ws") as ws:
+    with local_client(fake_app(tmp_path, step_seconds=0.02)) as c, c.websocket_connect("/ws") as ws:
         ws.receive_text()
         ws.send_text(start(init=FAIL_INIT, max_steps=20))
         receive_until(ws, "step")
