@@ -64,12 +64,12 @@ def sampling_problems(problem: Mapping[str, Any]) -> list[str]:
     """Why LIBERO's placement sampler cannot place this BDDL problem's objects (empty: it can).
 
     ``problem`` is LIBERO's parsed problem (``regions``, ``objects``, ``fixtures``, ``initial_state``): every
-    movable object needs one ``(:init)`` ``On``/``In`` condition on a region with sampling ranges, a fixture
-    region, or another object.
+    movable object needs one ``(:init)`` ``On``/``In`` condition on a table region with sampling ranges, a
+    fixture's region (a drawer, a cabinet's top), or another object.
     """
     regions = problem.get("regions", {})
     objects = [n for names in problem.get("objects", {}).values() for n in names]
-    fixtures = {n for names in problem.get("fixtures", {}).values() for n in names}
+    fixtures = {n for kind, names in problem.get("fixtures", {}).items() if kind != "table" for n in names}
     placed: dict[str, str] = {}
     for state in problem.get("initial_state", []):
         if len(state) == 3 and state[0] in ("on", "in"):
