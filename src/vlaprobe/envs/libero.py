@@ -24,7 +24,7 @@ from vlaprobe.envs.placements import (
     placement_seed,
     read_layout,
 )
-from vlaprobe.envs.setup import prepare_libero
+from vlaprobe.envs.setup import _quiet_import_robosuite, prepare_libero
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.symbols import Articulation, Goal, Labeler, Scene, WorldState
 from vlaprobe.symbols.world import FINGER_GAP_MAX
@@ -87,10 +87,11 @@ def resolve_task(task: int | str, suite: str = "libero_spatial") -> int:
 
 def task_problem(task: int, suite: str = "libero_spatial") -> dict[str, Any]:
     """LIBERO's parsed BDDL problem of one task (regions, objects, ``initial_state``); no simulator is built."""
+    spec = _benchmark(suite).get_task(task)
+    _quiet_import_robosuite()  # LIBERO's BDDL parser imports robosuite, which prints start-up advice
     from libero.libero import get_libero_path
     from libero.libero.envs.bddl_utils import robosuite_parse_problem
 
-    spec = _benchmark(suite).get_task(task)
     return robosuite_parse_problem(
         os.path.join(get_libero_path("bddl_files"), spec.problem_folder, spec.bddl_file)
     )
