@@ -51,3 +51,30 @@ def test_training_with_leave_one_task_out_tests_every_episode_in_its_tasks_fold(
     assert sorted(ev["split"]["test_episodes"]) == sorted(data.episode_keys)
     best = ev["heads"]["object"]["best"]
     assert best["value"] > 0.6  # the synthetic signal is shared by all tasks: it transfers
+
+
+def _evaluation(folder: Path, best: int, values: list[list[float]], predicates: list[str]) -> Path:
+    folder.mkdir()
+    level = {"value": values, "low": [[v - 0.05 for v in row] for row in values], "high": values}
+    head = {
+        "best": {"index": best},
+        "predicates": predicates,
+        "probe": {"balanced_accuracy": {"predicate": level}},
+    }
+    (folder / "evaluation.json").write_text(json.dumps({"heads": {"object": head}}))
+    return folder
+
+
+def test_split_comparison_reads_each_folder_at_its_best_layer(tmp_path: Path) -> None:
+    from vlaprobe.probes.cross_task import split_comparison
+
+    within = _evaluation(tmp_path / "w", 1, [[0.6, 0.7], [0.9, 0.8]], ["left-of", "on"])
+    across = _evaluation(tmp_path / "a", 0, [[0.65, 0.55, 0.5], [0.1, 0.1, 0.1]], ["left-of", "on", "inside"])
+    rows = split_comparison(within, across)
+    assert [(r.predicate, r.within, r.across) for r in rows] == [
+        ("left-of", 0.9, 0.65),
+        ("on", 0.8, 0.55),
+        ("inside", None, 0.5),
+    ]
+    assert rows[0].drop == pytest.approx(0.25) and rows[2].drop is None
+    assert rows[1].within_interval == (pytest.approx(0.75), 0.8)

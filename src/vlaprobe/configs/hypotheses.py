@@ -23,3 +23,17 @@ class HypothesesConfig:
     """Seed of the resampling."""
     json: bool = False
     """Print the result as JSON instead of the sentences."""
+
+
+@dataclass
+class CompareSplitsConfig:
+    """Per head and predicate, the within-task probes next to the leave-one-task-out probes of the same store."""
+
+    within: Path = Path("runs/default/probes")
+    """Probe folder trained with the default within-task split."""
+    across: Path = Path("runs/default/probes-loto")
+    """Probe folder trained with ``--split leave-one-task-out`` on the same store."""
+    metric: str = "balanced_accuracy"
+    """Metric compared (at each folder's best layer of the head)."""
+    json: bool = False
+    """Print JSON rows instead of the table."""
