@@ -4,8 +4,11 @@ Runs the one step loop (``vlaprobe.rollout.run_episode``) with the scripted expe
 observer (no model: every figure here is about the data and the expert), rendering 32 px frames. Two sets:
 
 - ``sampled``: ``--inits sampled`` with the perturbations of ``experiments/diverse.yaml``, sample indices
-  0..N-1 of every task (N = episodes per task of that config, 3), each episode seeded as collection seeds it;
-- ``fixed``: fixed init states 0..N-1, unperturbed (the default run's episodes, for the rate and the labels).
+  0 and 1 of every task, each episode seeded as collection seeds it;
+- ``fixed``: fixed init state 0 of four tasks, unperturbed: the CPU-per-step reference;
+- ``fixed_store``: the first 2 episodes per task of a fixed-init store (``$VLAPROBE_FIXED_STORE``, default
+  ``runs/default/activations``, the default run): its labels give the fixed-init diversity and baselines on
+  as many episodes as the sampled set.
 
 Figures: expert success, rejected samples, recovery per perturbation kind (drop: ``grasped`` turns false and
 true again and the bowl ends on the plate; knock-off: the goal atom turns false and true again), distinct
@@ -13,7 +16,7 @@ object-state vectors and atoms changing within episodes (``vlaprobe.collection.d
 task x time baselines on a within-task episode split (when ``vlaprobe.probes.baselines`` exists), and the
 CPU time per step of both sets (process time: robust to other load on the machine). Final line: JSON.
 
-    python bench/diverse_data.py        # 60 episodes on 2 worker processes
+    python bench/diverse_data.py        # 24 episodes on 2 worker processes
 """
 
 from __future__ import annotations
@@ -30,6 +33,10 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 WORKERS = 2
 IMAGE = 32
+SAMPLED_PER_TASK = 2  # sample indices 0, 1 of every task (20 episodes)
+FIXED_TASKS = (0, 3, 6, 9)  # fixed init state 0 of these tasks: the CPU-per-step reference
+FIXED_STORE = Path(os.environ.get("VLAPROBE_FIXED_STORE", REPO / "runs" / "default" / "activations"))
+"""A fixed-init store (the default run's): its labels give the fixed-init diversity and baselines."""
 
 
 class NullObserver:
@@ -48,11 +55,39 @@ class NullObserver:
         )
 
 
-def _experiment() -> tuple[int, str]:
+def _experiment() -> str:
     import yaml
 
-    cfg = yaml.safe_load((REPO / "experiments" / "diverse.yaml").read_text())["collect"]
-    return int(cfg["episodes_per_task"]), str(cfg["perturb"])
+    return str(yaml.safe_load((REPO / "experiments" / "diverse.yaml").read_text())["collect"]["perturb"])
+
+
+def _store_records(path: Path, per_task: int) -> list[dict]:
+    """The first ``per_task`` episodes of every task of a fixed-init store, as label records."""
+    from vlaprobe.collection.store import ActivationStore
+
+    store = ActivationStore.open(path)
+    out, seen = [], {}
+    for info in store.episodes():
+        if seen.setdefault(info.task, 0) >= per_task:
+            continue
+        seen[info.task] += 1
+        a = store.episode(info.key)
+        out.append(
+            {
+                "set": "fixed_store",
+                "task": info.task,
+                "init": info.init,
+                "success": info.success,
+                "length": info.length,
+                "cpu_s": 0.0,
+                "draws": 1,
+                "rejected": [],
+                "perturbations": [],
+                "object": np.asarray(a["object_atoms"]).tolist(),
+                "action": np.asarray(a["action_atoms"]).tolist(),
+            }
+        )
+    return out
 
 
 def run_task(job: tuple[int, str, int, str]) -> list[dict]:
@@ -167,7 +202,7 @@ def summarize(records: list[dict]) -> dict:
     from vlaprobe.collection.diversity import diversity
 
     out: dict = {}
-    for kind in ("fixed", "sampled"):
+    for kind in ("fixed", "sampled", "fixed_store"):
         rs = [r for r in records if r["set"] == kind]
         if not rs:
             continue
@@ -201,7 +236,7 @@ def summarize(records: list[dict]) -> dict:
             "action_atoms_varying": d.heads["action"].varying,
             "action_atoms_ever_true": d.heads["action"].ever_true,
             "cpu_ms_per_step": 1000 * sum(r["cpu_s"] for r in rs) / rows,
-            "baselines_balanced_accuracy": _baselines(rs),
+            "baselines_balanced_accuracy": _baselines(rs) if kind != "fixed" else None,
         }
     if "fixed" in out and "sampled" in out:
         out["cpu_per_step_ratio"] = out["sampled"]["cpu_ms_per_step"] / out["fixed"]["cpu_ms_per_step"]
@@ -209,11 +244,15 @@ def summarize(records: list[dict]) -> dict:
 
 
 def main() -> None:
-    n, perturb = _experiment()
-    jobs = [(t, kind, n, perturb) for kind in ("sampled", "fixed") for t in range(10)]
+    perturb = _experiment()
+    jobs = [(t, "sampled", SAMPLED_PER_TASK, perturb) for t in range(10)] + [
+        (t, "fixed", 1, perturb) for t in FIXED_TASKS
+    ]
     start = time.perf_counter()
     with mp.get_context("spawn").Pool(WORKERS) as pool:
         records = [r for chunk in pool.imap_unordered(run_task, jobs) for r in chunk]
+    if (FIXED_STORE / "zarr.json").is_file():
+        records += _store_records(FIXED_STORE, SAMPLED_PER_TASK)
     result = summarize(records)
     result["wall_s"] = time.perf_counter() - start
     result["perturb"] = perturb

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vlaprobe.configs.train import ProbeConfig, SplitConfig, TrainConfig
+from vlaprobe.configs.train import SplitConfig, TrainConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.probes import synthetic_data, train_on_data
 from vlaprobe.probes.split import check_no_leak, leave_one_task_out, make_folds, rows_of

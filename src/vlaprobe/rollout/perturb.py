@@ -31,6 +31,9 @@ WORKSPACE = ((-0.22, -0.20), (0.16, 0.30))
 """(x, y) low and high corners of the table area a moved object may land in (the robot's reach)."""
 CLEARANCE = 0.02
 """Gap (metres) kept between a moved object's footprint and every other object's."""
+DROP_AWAY = 0.12
+"""Least horizontal distance (metres) of the held object from the place target for a drop: it falls onto the
+table, not onto the target (which would end the task without a re-grasp)."""
 KNOCK_DISTANCE = (0.12, 0.22)
 """Distance range (metres) of a knocked-off object's landing spot from the place target's origin."""
 
@@ -78,7 +81,7 @@ class Planned:
 
     kind: str
     after: int
-    """drop: held rows with the object lifted before it; displace: the row (if still before the grasp);
+    """drop: held rows with the object lifted and away from the target before it; displace: the row (if still before the grasp);
     knock_off: rows after success (with nothing grasped) before it."""
     row: int | None = None
     """The row at which it was applied (None: its moment never came)."""
@@ -127,7 +130,7 @@ class Perturber:
     def __post_init__(self) -> None:
         rng = np.random.default_rng([self.seed, 7919])
         self.rng = np.random.default_rng([self.seed, 104729])
-        triggers = {"drop": (2, 12), "displace": (3, 25), "knock_off": (1, 4)}
+        triggers = {"drop": (1, 6), "displace": (3, 25), "knock_off": (1, 4)}
         for kind in KINDS:
             hit = rng.random() < getattr(self.spec, kind)
             after = int(rng.integers(*triggers[kind]))
@@ -147,12 +150,13 @@ class Perturber:
         assert isinstance(control, EpisodeControl)
         self._grasped_ever |= grasped
         lifted = world.aabb_lo[self._pick, 2] - world.table_height > LIFTED
-        self._held_lifted += int(grasped and lifted)
+        away = np.linalg.norm(world.pos[self._pick, :2] - world.pos[self._place, :2]) > DROP_AWAY
+        self._held_lifted += int(grasped and lifted and away)
         self._success_rows = self._success_rows + 1 if success and not grasped else 0
         for p in self.planned:
             if p.row is not None:
                 continue
-            if p.kind == "drop" and grasped and lifted and self._held_lifted > p.after:
+            if p.kind == "drop" and grasped and lifted and away and self._held_lifted > p.after:
                 control.drop(DROP_STEPS)
             elif p.kind == "displace" and not self._grasped_ever and t == p.after:
                 xy = free_spot(world, self._pick, self.rng)
