@@ -69,7 +69,9 @@ def test_a_clean_layout_passes_and_each_fault_is_named() -> None:
     assert layout_problems(layout(speed=np.array([0.0, 0.2])), PROBLEM, ok) == [
         "plate_1 still moving (0.20 m/s)"
     ]
-    away = layout(pos=np.array([[0.06, 0.01, 0.92], [0.06, 0.01, 0.95]]))  # 4 cm beyond the range + 2 cm slack
+    away = layout(
+        pos=np.array([[0.06, 0.01, 0.92], [0.06, 0.01, 0.95]])
+    )  # 4 cm beyond the range + 2 cm slack
     assert layout_problems(away, PROBLEM, ok) == ["bowl_1 left its region main_table_a_region"]
     deep = layout(penetration={("bowl_1", "plate_1"): PENETRATION + 0.002})
     assert layout_problems(deep, PROBLEM, ok) == ["bowl_1 and plate_1 intersect (7 mm)"]
@@ -104,3 +106,25 @@ def test_sampled_resets_reproduce_differ_and_pass_their_checks() -> None:
         assert "on(akita_black_bowl_1,cookies_1)" in {
             k for k, v in env.labeler.as_dict(env.world_state())[0].items() if v
         }
+
+
+@pytest.mark.libero
+def test_place_object_moves_a_movable_object_onto_the_table() -> None:
+    from vlaprobe.configs.env import EnvConfig
+    from vlaprobe.envs.libero import LiberoTaskEnv
+    from vlaprobe.errors import VlaprobeError
+
+    with LiberoTaskEnv(0, EnvConfig(image_size=32)) as env:
+        env.reset(0)
+        obs = env.place_object("akita_black_bowl_1", (0.1, -0.1))
+        state = env.world_state()
+        i = env.scene.tabletop.index("akita_black_bowl_1")
+        np.testing.assert_allclose(state.pos[i, :2], (0.1, -0.1), atol=1e-6)
+        assert abs(state.aabb_lo[i, 2] - state.table_height - 0.003) < 1e-3 and obs.image is not None
+        for _ in range(10):
+            env.step(np.array([0, 0, 0, 0, 0, 0, -1.0]))
+        assert "on-table(akita_black_bowl_1)" in {
+            k for k, v in env.labeler.as_dict(env.world_state())[0].items() if v
+        }
+        with pytest.raises(VlaprobeError, match="not a movable object"):
+            env.place_object("wooden_cabinet_1", (0.0, 0.0))
