@@ -116,10 +116,10 @@ def test_place_object_moves_a_movable_object_onto_the_table() -> None:
 
     with LiberoTaskEnv(0, EnvConfig(image_size=32)) as env:
         env.reset(0)
-        obs = env.place_object("akita_black_bowl_1", (0.1, -0.1))
+        obs = env.place_object("akita_black_bowl_1", (-0.1, 0.0))
         state = env.world_state()
         i = env.scene.tabletop.index("akita_black_bowl_1")
-        np.testing.assert_allclose(state.pos[i, :2], (0.1, -0.1), atol=1e-6)
+        np.testing.assert_allclose(state.pos[i, :2], (-0.1, 0.0), atol=1e-6)
         assert abs(state.aabb_lo[i, 2] - state.table_height - 0.003) < 1e-3 and obs.image is not None
         for _ in range(10):
             env.step(np.array([0, 0, 0, 0, 0, 0, -1.0]))
