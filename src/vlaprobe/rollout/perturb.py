@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.rollout.loop import EpisodeControl
 from vlaprobe.symbols import Goal, Scene, WorldState
 
 KINDS = ("drop", "displace", "knock_off")
@@ -142,12 +143,11 @@ class Perturber:
         self._grasped_ever = False
         self._success_rows = 0
 
-    def observe(self, t: int, world: WorldState, grasped: bool, success: bool, control: object) -> str:
+    def observe(
+        self, t: int, world: WorldState, grasped: bool, success: bool, control: EpisodeControl
+    ) -> str:
         """Look at row ``t`` (its world, whether the pick object is grasped, the task's success); request
-        the perturbation due now from ``control`` (an ``EpisodeControl``). Returns the kind requested, or ""."""
-        from vlaprobe.rollout.loop import EpisodeControl
-
-        assert isinstance(control, EpisodeControl)
+        the perturbation due now from ``control``. Returns the kind requested, or ""."""
         self._grasped_ever |= grasped
         lifted = world.aabb_lo[self._pick, 2] - world.table_height > LIFTED
         away = np.linalg.norm(world.pos[self._pick, :2] - world.pos[self._place, :2]) > DROP_AWAY
