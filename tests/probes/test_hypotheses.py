@@ -89,3 +89,12 @@ def test_resamples_are_drawn_jointly_for_both_heads() -> None:
     result = answer_hypotheses(c)
     assert all(d.value == d.low == d.high == 0 for d in result.differences.values())
     assert c.point["object"][3] > c.point["object"][0]
+
+
+def test_too_few_test_episodes_cannot_tell() -> None:
+    c = curves(sigmoid_curve(6, peak=12), sigmoid_curve(20, peak=28))
+    few = answer_hypotheses(LayerCurves(c.layers, c.point, c.resamples, episodes=2))
+    assert [v.verdict for v in few.verdicts] == ["cannot tell", "cannot tell"]
+    assert "Only 2 test episodes" in few.verdicts[0].sentence and few.episodes == 2
+    enough = answer_hypotheses(LayerCurves(c.layers, c.point, c.resamples, episodes=10))
+    assert [v.verdict for v in enough.verdicts] == ["support", "support"]

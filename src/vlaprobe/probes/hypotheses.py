@@ -24,6 +24,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 STATISTICS = ("best", "earliest", "steepest")
+MIN_EPISODES = 8
+"""Fewer test episodes than this give too few distinct resamples for an interval to decide: "cannot tell"."""
 
 
 @dataclass(frozen=True)
@@ -38,6 +40,8 @@ class LayerCurves:
     """Head -> (resamples, layers): row b of every head is computed on the same resampled episodes. NaN where a
     resample leaves the metric undefined."""
     metric: str = "balanced_accuracy"
+    episodes: int | None = None
+    """Test episodes the resamples were drawn from (None: unknown, e.g. synthetic curves)."""
 
 
 @dataclass(frozen=True)
@@ -83,6 +87,7 @@ class Hypotheses:
 
     metric: str
     resamples: int
+    episodes: int | None
     heads: dict[str, HeadLayers]
     differences: dict[str, Difference]
     verdicts: list[Verdict]
@@ -138,8 +143,13 @@ def _head(curves: LayerCurves, head: str) -> tuple[HeadLayers, dict[str, np.ndar
     return result, per
 
 
-def _verdict(hypothesis: str, claim: str, d: Difference, heads: dict[str, HeadLayers], what: str) -> Verdict:
-    if d.high < 0:
+def _verdict(
+    hypothesis: str, claim: str, d: Difference, heads: dict[str, HeadLayers], what: str, episodes: int | None
+) -> Verdict:
+    few = episodes is not None and episodes < MIN_EPISODES
+    if few or np.isnan(d.high):  # NaN: no resample defined it
+        verdict = "cannot tell"
+    elif d.high < 0:
         verdict = "support"
     elif d.low > 0:
         verdict = "contradict"
@@ -151,6 +161,10 @@ def _verdict(hypothesis: str, claim: str, d: Difference, heads: dict[str, HeadLa
         f"{hypothesis} ({claim}): the data {says}. {what} is layer {o} for object states and {a} for action "
         f"states; object minus action {d.value:+.0f} layers (95% interval {d.low:+.1f} to {d.high:+.1f})."
     )
+    if few:
+        sentence += (
+            f" Only {episodes} test episodes (fewer than {MIN_EPISODES}): too few for the interval to decide."
+        )
     return Verdict(hypothesis, claim, d.statistic, verdict, sentence)
 
 
@@ -175,10 +189,18 @@ def answer_hypotheses(curves: LayerCurves) -> Hypotheses:
             differences["earliest"],
             heads,
             "The earliest layer within the best layer's interval",
+            curves.episodes,
         ),
-        _verdict("H2", "action states peak in later layers", differences["best"], heads, "The best layer"),
+        _verdict(
+            "H2",
+            "action states peak in later layers",
+            differences["best"],
+            heads,
+            "The best layer",
+            curves.episodes,
+        ),
     ]
-    return Hypotheses(curves.metric, b.pop(), heads, differences, verdicts)
+    return Hypotheses(curves.metric, b.pop(), curves.episodes, heads, differences, verdicts)
 
 
 # ----- curves from predictions ----------------------------------------------------------------------------------
@@ -220,4 +242,4 @@ def curves_from_counts(
     )
     point = {h: balanced_accuracy_curve(c.sum(axis=0)) for h, c in counts.items()}
     boot = {h: balanced_accuracy_curve(np.einsum("be,elak->blak", weights, c)) for h, c in counts.items()}
-    return LayerCurves(tuple(int(x) for x in layers), point, boot)
+    return LayerCurves(tuple(int(x) for x in layers), point, boot, episodes=episodes)
