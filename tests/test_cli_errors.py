@@ -445,3 +445,72 @@ def test_monitor_refuses_a_damaged_store(
     argv = ["monitor", "--store", str(store), "--probes", str(probes), "--all-episodes"]
     err = one_line_error(capsys, argv)
     assert "damaged episode" in err and "rerun `vlaprobe collect`" in err
+
+
+# ----- diverse data (#18): perturbation specs, sampled inits, cross-task split --------------------------------
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["collect", "--out", "OUT", "--perturb", "shake=0.5"], "--perturb: unknown perturbation 'shake'"),
+        (
+            ["collect", "--out", "OUT", "--perturb", "drop=1.5"],
+            "drop needs a probability in [0, 1], got '1.5'",
+        ),
+        (
+            ["collect", "--out", "OUT", "--perturb", "knock_off=-0.2"],
+            "knock_off needs a probability in [0, 1]",
+        ),
+        (
+            ["run", "--out", "OUT", "--collect.perturb", "displace"],
+            "--collect.perturb: displace needs a probability",
+        ),
+    ],
+)
+def test_bad_perturbation_specs_are_refused_before_any_work(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    argv: list[str],
+    message: str,
+) -> None:
+    from vlaprobe.policies import factory
+
+    monkeypatch.setattr(
+        factory, "make_policy", lambda *a: pytest.fail("no model before the options are checked")
+    )
+    err = one_line_error(capsys, [str(tmp_path / "out") if a == "OUT" else a for a in argv])
+    assert message in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_sampled_inits_of_a_task_whose_regions_cannot_be_sampled(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from vlaprobe.envs import libero
+
+    real = libero.task_problem
+
+    def unplaceable(task: int, suite: str = "libero_spatial") -> dict:
+        problem = dict(real(task, suite))
+        if task == 4:  # the bowl loses its (:init) placement
+            problem["initial_state"] = [s for s in problem["initial_state"] if s[1] != "akita_black_bowl_1"]
+        return problem
+
+    monkeypatch.setattr(libero, "task_problem", unplaceable)
+    out = tmp_path / "out"
+    err = one_line_error(capsys, ["collect", "--out", str(out), "--tasks", "3", "4", "--inits", "sampled"])
+    assert "--inits sampled: task 4's regions cannot be sampled (akita_black_bowl_1 has no On/In" in err
+    assert "use --inits fixed" in err and not out.exists()
+    # the same tasks pass the check with LIBERO's own BDDL files
+    monkeypatch.setattr(libero, "task_problem", real)
+    from vlaprobe.configs.checks import check_inits
+    from vlaprobe.configs.env import EnvConfig
+
+    check_inits(EnvConfig(inits="sampled"), ())
+
+
+def test_leave_one_task_out_needs_two_tasks(store: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    one_task = store.parent / "one"
+    write(one_task, [(0, 0, 6), (0, 1, 5), (0, 2, 6)])
+    err = one_line_error(capsys, ["train", "--store", str(one_task), "--split", "leave-one-task-out"])
+    assert "--split leave-one-task-out needs episodes of at least 2 tasks" in err

@@ -52,6 +52,7 @@ class FakeEnv:
 
     def reset(self, init: int) -> Observation:
         self.init, self.t = init, 0
+        self.moves: list[tuple[int, str, tuple[float, float]]] = []
         self.labeler.reset()
         return self._observe()
 
@@ -63,6 +64,10 @@ class FakeEnv:
         return Observation(
             image=image, proprio=rng.random(9).astype(np.float32), step=self.t, success=success
         )
+
+    def place_object(self, name: str, xy: tuple[float, float]) -> Observation:
+        self.moves.append((self.t, name, xy))
+        return self._observe()
 
     def step(self, action: np.ndarray) -> Observation:
         time.sleep(self.delay)

@@ -31,6 +31,7 @@ from vlaprobe.configs.collect import CollectConfig
 from vlaprobe.envs.setup import resolve_assets
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import check_output_folder, versions
+from vlaprobe.rollout.perturb import PerturbSpec
 
 VOLATILE_MODEL_KEYS = ("device", "source")
 """Model description entries that may change between runs of one store (recorded per run, not compared)."""
@@ -78,8 +79,13 @@ def _env_meta(cfg: CollectConfig) -> dict[str, Any]:
 
 
 def _run_meta(cfg: CollectConfig) -> dict[str, Any]:
-    """The settings an existing store must share, known before any model is loaded."""
+    """The settings an existing store must share, known before any model is loaded (sampled inits and
+    perturbations only when used, so that stores of the defaults written before them still resume)."""
+    extra: dict[str, Any] = {"inits": "sampled"} if cfg.env.inits == "sampled" else {}
+    if cfg.perturb:
+        extra["perturb"] = PerturbSpec.parse(cfg.perturb).text()
     return {
+        **extra,
         "driver": cfg.driver,
         "pooling": cfg.policy.pooling,
         "suite": cfg.env.suite,

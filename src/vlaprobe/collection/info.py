@@ -8,6 +8,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
+from vlaprobe.collection.diversity import store_diversity, summary_lines
 from vlaprobe.collection.store import ActivationStore
 from vlaprobe.collection.verify import Damage, check_store, describe, repair_hint
 from vlaprobe.configs.collect import InfoConfig
@@ -32,6 +33,8 @@ def info(cfg: InfoConfig) -> int:
     s = summarize(cfg.path)
     damage = check_store(cfg.path, read=cfg.verify)
     s["damaged"] = [{"key": d.key, "problem": d.problem} for d in damage]
+    div = store_diversity(cfg.path) if not damage else None
+    s["diversity"] = div.as_dict() if div is not None else None
     if cfg.json:
         print(json.dumps(s))
         return _fail(cfg.path, damage)
@@ -56,6 +59,8 @@ def info(cfg: InfoConfig) -> int:
                 f"{task:>4}  {len(eps):>8}  {sum(e['success'] for e in eps):>10}  "
                 f"{sum(e['length'] for e in eps):>6}  {text}"
             )
+    if div is not None:
+        print("\n".join(summary_lines(div)))
     return _fail(cfg.path, damage)
 
 

@@ -28,7 +28,9 @@ from vlaprobe.envs import make_env
 from vlaprobe.envs.base import TaskEnv
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.policies.base import VLAPolicy
-from vlaprobe.rollout import Driver, DriverName, make_driver, run_episode
+from vlaprobe.rollout import Driver, DriverName, EpisodeControl, make_driver, run_episode
+from vlaprobe.rollout.perturb import KIND_CODE, Perturber, PerturbSpec
+from vlaprobe.symbols.vocabulary import atom
 
 if TYPE_CHECKING:
     from vlaprobe.symbols import Goal, Scene, WorldState
@@ -178,6 +180,12 @@ class Worker:
         world: list[WorldState] = []
         label_s = 0.0
         success_step: int | None = None
+        spec = PerturbSpec.parse(self.cfg.perturb)
+        control = EpisodeControl() if spec.any else None
+        perturber = Perturber(spec, seed, env.scene, env.goal) if spec.any else None
+        grasp_col = env.labeler.vocabulary.action_atoms.index(atom("grasped", env.goal.pick))
+        codes: list[int] = []
+        pending, was_success, perturbed = "", False, False
         start = time.perf_counter()
         for r in run_episode(
             env,
@@ -186,30 +194,36 @@ class Worker:
             init=unit.init,
             max_steps=self.cfg.env.max_steps,
             post_success_steps=self.cfg.post_success_steps,
+            control=control,
         ):
             label_s += r.timings.label_ms / 1000.0
-            if r.success and success_step is None:
+            # A success lost after a perturbation (knocked off) is not the episode's: the last onset counts.
+            if r.success and (success_step is None or (perturbed and not was_success)):
                 success_step = r.t
-            rows["hidden"].append(np.asarray(r.hidden, dtype=np.float16))
-            rows["object_atoms"].append(r.object_atoms)
-            rows["action_atoms"].append(r.action_atoms)
-            rows["image"].append(r.model_image)
-            rows["proprio"].append(r.proprio)
-            rows["action"].append(r.action)
-            rows["predicted_action"].append(r.predicted_action)
-            rows["action_tokens"].append(r.action_tokens)
-            rows["step"].append(r.step)
+            was_success = r.success
+            move = KIND_CODE.get(pending, 0) if r.perturbation == "move" else 0
+            codes.append(KIND_CODE["drop"] if r.perturbation == "drop" else move)
+            perturbed |= r.perturbed
+            for name, value in _row_values(r).items():
+                rows[name].append(value)
             world.append(r.world)
+            if perturber is not None and control is not None:
+                pending = (
+                    perturber.observe(r.t, r.world, bool(r.action_atoms[grasp_col]), r.success, control)
+                    or pending
+                )
         seconds = time.perf_counter() - start
         arrays = {name: np.asarray(np.stack(rows[name]), dtype=dtype) for name, dtype in _STEP_ARRAYS.items()}
         arrays["hidden"] = np.ascontiguousarray(np.moveaxis(arrays["hidden"], 0, 1))  # (layers, T, ...)
         arrays.update(world_arrays(world))
+        if perturber is not None:
+            arrays["perturbation"] = np.asarray(codes, dtype=np.int8)
         info = EpisodeInfo(
             key=unit.key,
             task=unit.task,
             init=unit.init,
             attempt=unit.attempt,
-            success=success_step is not None,
+            success=success_step is not None and (not perturbed or was_success),
             length=len(world),
             seed=seed,
             driver=self.cfg.driver,
@@ -220,6 +234,7 @@ class Worker:
             "scene": dataclasses.asdict(env.scene),
             "goal": dataclasses.asdict(env.goal),
             "seconds": round(seconds, 3),
+            **_episode_marks(env, perturber),
         }
         return EpisodeResult(info, arrays, attrs, seconds, label_s)
 
@@ -227,6 +242,38 @@ class Worker:
         if self.env is not None:
             self.env.close()
             self.env = None
+
+
+def _row_values(r: Any) -> dict[str, Any]:
+    """One record's values of the per-step arrays."""
+    return {
+        "hidden": np.asarray(r.hidden, dtype=np.float16),
+        "object_atoms": r.object_atoms,
+        "action_atoms": r.action_atoms,
+        "image": r.model_image,
+        "proprio": r.proprio,
+        "action": r.action,
+        "predicted_action": r.predicted_action,
+        "action_tokens": r.action_tokens,
+        "step": r.step,
+    }
+
+
+def _episode_marks(env: TaskEnv, perturber: Perturber | None) -> dict[str, Any]:
+    """Episode attributes of sampled placements and perturbations (none under the defaults, so fixed-init,
+    unperturbed stores keep their attributes)."""
+    marks: dict[str, Any] = {}
+    placement = getattr(env, "last_placement", None)
+    if getattr(env, "sampled", False) and placement is not None:
+        marks["inits"] = "sampled"
+        marks["placement_seed"] = placement.seed
+        marks["placement_draws"] = placement.draws
+        marks["rejected_samples"] = list(placement.rejected)
+    if perturber is not None:
+        marks["perturbations"] = [
+            {"kind": p.kind, "row": p.row} for p in perturber.planned if p.row is not None
+        ]
+    return marks
 
 
 _STEP_ARRAYS: dict[str, Any] = {

@@ -191,6 +191,23 @@ def check_tasks(tasks: tuple[int, ...], suite: str, flag: str) -> list[int]:
     return known
 
 
+def check_inits(env: EnvConfig, tasks: tuple[int, ...]) -> None:
+    """With ``--inits sampled``, every selected task's BDDL lets LIBERO's placement sampler place its objects
+    (read from the BDDL files: no simulator)."""
+    if env.inits != "sampled":
+        return
+    from vlaprobe.envs.libero import suite_tasks, task_problem
+    from vlaprobe.envs.placements import sampling_problems
+
+    for task in tasks or tuple(i for i, _ in suite_tasks(env.suite)):
+        problems = sampling_problems(task_problem(task, env.suite))
+        if problems:
+            raise VlaprobeError(
+                f"--inits sampled: task {task}'s regions cannot be sampled ({'; '.join(problems)}); "
+                "use --inits fixed or leave the task out (--tasks)"
+            )
+
+
 def check_collect(cfg: CollectConfig, prefix: str = "") -> None:
     """The options of ``vlaprobe collect`` that need no model or store to check."""
     f = lambda name: _flag(prefix, name)  # noqa: E731
@@ -203,6 +220,10 @@ def check_collect(cfg: CollectConfig, prefix: str = "") -> None:
     if not (math.isfinite(cfg.ray_gpus_per_worker) and cfg.ray_gpus_per_worker >= 0):
         raise VlaprobeError(f"{f('ray_gpus_per_worker')} must be 0 or more, got {cfg.ray_gpus_per_worker}")
     check_env(cfg.env, prefix + "env.")
+    check_inits(cfg.env, cfg.tasks)
+    from vlaprobe.rollout.perturb import PerturbSpec
+
+    PerturbSpec.parse(cfg.perturb, f("perturb"))
     check_policy(cfg.policy)
 
 
@@ -222,6 +243,7 @@ def check_serve(cfg: ServeConfig) -> None:
         raise VlaprobeError(f"--image-hz must be a positive number, got {cfg.image_hz}")
     _between(cfg.replay_hz, REPLAY_HZ[0], REPLAY_HZ[1], "--replay-hz", closed=True)
     check_env(cfg.env)
+    check_inits(cfg.env, ())
     if cfg.recordings is not None:  # a folder the user named (the default sits beside the probes)
         check_output_folder(cfg.recordings, "--recordings")
     if cfg.token is not None and cfg.token_file is not None:

@@ -37,6 +37,12 @@ class CollectConfig:
     atom holds in one row per episode and the 1% label filter drops it; with the default the goal atom
     ``on(akita_black_bowl_1,plate_1)`` is true in ~8% of the default run's training steps (docs/collection.md).
     Each episode records its ``success_step`` so analyses can select or exclude the rows after it."""
+    perturb: str = ""
+    """Perturbations per episode, each with a probability: "drop=0.5,displace=0.3,knock_off=0.3". drop: the
+    gripper is forced open while the expert carries the object; displace: the object is moved to a free spot
+    before it is grasped; knock_off: it is moved off its target after placement. Drawn from the episode's seed;
+    the expert recovers (re-grasps); perturbed rows and episodes are marked in the store (docs/collection.md).
+    Default: none."""
     keep_failed: bool = False
     """Also store failed episodes (marked success=false) instead of only recording that they were tried."""
     workers: int = 1

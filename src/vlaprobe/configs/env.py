@@ -4,7 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
+
+import tyro
+
+Inits = Literal["fixed", "sampled"]
 
 
 @dataclass
@@ -23,5 +27,10 @@ class EnvConfig:
     states place them ~7 cm above; OpenVLA's evaluation waits 10 steps too."""
     render: bool = True
     """Render the agentview camera. Without it steps are ~8x faster but there is no image."""
+    inits: Annotated[Inits, tyro.conf.arg(prefix_name=False)] = "fixed"
+    """Where objects start (``--inits``, the same flag in collect, run and serve): "fixed" resets to the task's
+    50 saved init states (the paper); "sampled" draws a new layout from the task's BDDL regions with LIBERO's
+    own placement sampler, one reproducible layout per sample index (its seed is stored with the episode), and
+    re-draws layouts that fall, tip, intersect or leave their region (docs/collection.md)."""
     max_steps: int = 300
     """Step budget of one episode (OpenVLA's LIBERO-spatial evaluation allows 220 after settling)."""

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
+
+import tyro
 
 Metric = Literal["accuracy", "balanced_accuracy", "f1", "auprc"]
 
@@ -20,6 +22,13 @@ class SplitConfig:
     every episode is tested once, the figures pool all folds, and the saved probes are refit on all episodes."""
     success_only: bool = False
     """Use only the episodes in which the task was completed."""
+    by: Annotated[
+        Literal["episode", "leave-one-task-out"], tyro.conf.arg(name="split", prefix_name=False)
+    ] = "episode"
+    """``--split leave-one-task-out``: one fold per task, trained on the other tasks' episodes and tested on its
+    own (cross-task generalisation; --split.folds and --split.test-fraction are then unused). The label filter
+    keeps the atoms that vary in every fold's training split; the saved probes are refit on all episodes.
+    Default "episode": the within-task split above."""
 
 
 @dataclass

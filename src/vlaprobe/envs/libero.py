@@ -15,7 +15,16 @@ from typing import Any
 import numpy as np
 
 from vlaprobe.configs.env import EnvConfig
-from vlaprobe.envs.setup import prepare_libero
+from vlaprobe.envs.placements import (
+    MAX_DRAWS,
+    SAMPLED_INITS,
+    PlacementReport,
+    init_conditions_hold,
+    layout_problems,
+    placement_seed,
+    read_layout,
+)
+from vlaprobe.envs.setup import _quiet_import_robosuite, prepare_libero
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.symbols import Articulation, Goal, Labeler, Scene, WorldState
 from vlaprobe.symbols.world import FINGER_GAP_MAX
@@ -76,6 +85,18 @@ def resolve_task(task: int | str, suite: str = "libero_spatial") -> int:
     raise VlaprobeError(f"no {suite} task has the instruction {task!r}; list them with `vlaprobe tasks`")
 
 
+def task_problem(task: int, suite: str = "libero_spatial") -> dict[str, Any]:
+    """LIBERO's parsed BDDL problem of one task (regions, objects, ``initial_state``); no simulator is built."""
+    spec = _benchmark(suite).get_task(task)
+    _quiet_import_robosuite()  # LIBERO's BDDL parser imports robosuite, which prints start-up advice
+    from libero.libero import get_libero_path
+    from libero.libero.envs.bddl_utils import robosuite_parse_problem
+
+    return robosuite_parse_problem(
+        os.path.join(get_libero_path("bddl_files"), spec.problem_folder, spec.bddl_file)
+    )
+
+
 def _articulation(props: dict[str, Any], key: str) -> Articulation:
     """LIBERO's open/turn-on rule from an articulated object's declared ranges."""
     art = props.get("articulation", {})
@@ -108,7 +129,10 @@ class LiberoTaskEnv:
         self.instruction: str = spec.language
         self.task_name: str = spec.name
         self._init_states = bench.get_task_init_states(self.task_index)
-        self.num_init_states = len(self._init_states)
+        self.sampled = self.cfg.inits == "sampled"
+        self.num_init_states = SAMPLED_INITS if self.sampled else len(self._init_states)
+        self.last_placement: PlacementReport | None = None
+        """How the last sampled reset's layout was found (None under fixed inits)."""
         bddl = os.path.join(get_libero_path("bddl_files"), spec.problem_folder, spec.bddl_file)
         size = self.cfg.image_size
         self._env = OffScreenRenderEnv(
@@ -224,26 +248,75 @@ class LiberoTaskEnv:
 
     # ----- episode ----------------------------------------------------------------------------------------
     def reset(self, init: int) -> Observation:
-        """Set the task's fixed init state ``init``, let objects settle (gripper open), observe."""
+        """Set the task's fixed init state ``init`` (or sampled layout ``init``), let objects settle, observe."""
         if not 0 <= init < self.num_init_states:
+            kind = "sample index" if self.sampled else "init state"
             raise VlaprobeError(
-                f"init state {init} out of range; task {self.task_index} has 0-{self.num_init_states - 1}"
+                f"{kind} {init} out of range; task {self.task_index} has 0-{self.num_init_states - 1}"
             )
-        # Same init, same state: LIBERO's soft reset samples placements from numpy's global generator (then
-        # overwritten by the init state, but the draw shifts later randomness), and robosuite keeps the
-        # gripper's last command and MuJoCo's solver warm start across resets.
-        np.random.seed(1000 * self.task_index + init)
-        robot = self._sim_env.robots[0]
-        robot.gripper.current_action[:] = 0
-        self._mj_data.qacc_warmstart[:] = 0
+        if self.sampled:
+            return self._reset_sampled(init)
+        self._prepare_reset(1000 * self.task_index + init)
         self._env.reset()
         raw = self._env.set_init_state(self._init_states[init])
+        return self._settle(raw)
+
+    def _prepare_reset(self, seed: int) -> None:
+        # Same init, same state: LIBERO's soft reset samples placements from numpy's global generator (then
+        # overwritten by a fixed init state, but the draw shifts later randomness), and robosuite keeps the
+        # gripper's last command and MuJoCo's solver warm start across resets.
+        np.random.seed(seed)
+        self._sim_env.robots[0].gripper.current_action[:] = 0
+        self._mj_data.qacc_warmstart[:] = 0
+
+    def _settle(self, raw: dict[str, Any]) -> Observation:
         self._gripper_command = -1.0
         for _ in range(self.cfg.settle_steps):
             raw, _, _, _ = self._env.step(NOOP_ACTION)
         self._step = 0
         self.labeler.reset()  # a new episode: forget the last one's grasp and placing memory
         return self._observation(raw)
+
+    def _unplace_fixtures(self) -> None:
+        """Put the fixtures back at the origin before a sampling reset, as a freshly built scene has them:
+        LIBERO's site-conditioned samplers (an object on a cabinet's top or in its drawer) add the fixture's
+        sampled pose to the site's position, which they expect in the fixture's own frame. After a soft reset
+        the site is already at its world position and those objects land ~1 m off (measured: every draw of
+        task 3 placed the second bowl 1 m above the table and off the cabinet)."""
+        model = self._sim_env.sim.model
+        for fixture in self._sim_env.fixtures_dict.values():
+            body = model.body_name2id(fixture.root_body)
+            model.body_pos[body] = 0.0
+            model.body_quat[body] = (1.0, 0.0, 0.0, 0.0)
+
+    def _reset_sampled(self, init: int) -> Observation:
+        """A new layout from LIBERO's placement sampler (reset without an init state), re-drawn until it passes
+        the checks of :func:`~vlaprobe.envs.placements.layout_problems`."""
+        from robosuite.utils.errors import RandomizationError
+
+        problem, names = self._sim_env.parsed_problem, self.scene.tabletop
+        rejected: list[str] = []
+        for draw in range(MAX_DRAWS):
+            seed = placement_seed(self.task_index, init, draw)
+            self._prepare_reset(seed)
+            self._unplace_fixtures()
+            try:
+                raw = self._env.reset()
+            except RandomizationError as exc:
+                rejected.append(f"sampler: {exc}")
+                continue
+            sampled = self._mj_data.xquat[self._body_ids].copy()
+            obs = self._settle(raw)
+            layout = read_layout(self._sim_env, names, self._geom_owner, sampled, self._table_height)
+            problems = layout_problems(layout, problem, init_conditions_hold(self._sim_env, problem))
+            if not problems:
+                self.last_placement = PlacementReport(init, seed, draw + 1, tuple(rejected))
+                return obs
+            rejected.append("; ".join(problems))
+        raise VlaprobeError(
+            f"task {self.task_index}: no valid sampled layout for sample {init} in {MAX_DRAWS} draws "
+            f"(last: {rejected[-1]}); use --inits fixed for this task"
+        )
 
     def step(self, action: np.ndarray) -> Observation:
         """Apply a 7-D action (dx, dy, dz, droll, dpitch, dyaw, gripper: -1 open, +1 close)."""
@@ -265,6 +338,24 @@ class LiberoTaskEnv:
         return Observation(
             image=image, proprio=proprio, step=self._step, success=bool(self._env.check_success())
         )
+
+    def place_object(self, name: str, xy: tuple[float, float]) -> Observation:
+        """Move the movable object ``name`` to (x, y), its bottom 3 mm above the table, at rest and with its
+        orientation kept, then observe again (a new render): a perturbation between two steps."""
+        e = self._sim_env
+        if name not in self.scene.pickupable:
+            raise VlaprobeError(f"cannot move {name!r}: not a movable object of task {self.task_index}")
+        i = self.scene.tabletop.index(name)
+        state = self.world_state()
+        joint = e.get_object(name).joints[-1]
+        qpos = np.array(e.sim.data.get_joint_qpos(joint), dtype=np.float64)
+        qpos[0] += xy[0] - state.pos[i, 0]
+        qpos[1] += xy[1] - state.pos[i, 1]
+        qpos[2] += self._table_height + 0.003 - state.aabb_lo[i, 2]
+        e.sim.data.set_joint_qpos(joint, qpos)
+        e.sim.data.set_joint_qvel(joint, np.zeros(6))
+        e.sim.forward()
+        return self._observation(e._get_observations(force_update=True))
 
     def render(self) -> np.ndarray:
         """A fresh raw agentview render of the current state (same orientation as ``Observation.image``)."""

@@ -15,7 +15,9 @@ derived from the goal and the live scene, never from the task index:
    would hook the wall), ``carry`` until its origin is over the target's, ``lower`` it to ``RELEASE_GAP`` above
    the target's top, ``release``, ``retreat`` upwards and hold still (``done``).
 
-If the object slips out of the fingers, the expert opens, rises (``regrasp``) and starts over.
+If the object slips out of the fingers (or is dropped), moves before it is grasped (a displacement), or leaves
+the target after the release (knocked off), the expert opens, rises (``regrasp``) and starts over from where
+the object now is.
 
 Actions follow robosuite's OSC_POSE controller as LIBERO configures it (``osc_pose.json``): each step sets the
 goal pose relative to the current end-effector pose; position offset = action[:3] x 5 cm, orientation offset =
@@ -68,6 +70,8 @@ STALL_STEPS = 8  # steps without 1 mm of progress that end a move (something blo
 PHASE_STEPS = 80  # steps after which an approach or descent counts as failed
 MIN_OPENING = 0.001  # finger opening (metres) below which the fingers hold nothing
 LOST_DISTANCE = 0.02  # grip point this far outside the object's box: the grasp is lost
+REPLAN_DISTANCE = 0.03  # the object moved this far (horizontally) since its grasp was planned: plan again
+OFF_TARGET = 0.06  # a released object this far (horizontally) from the target's origin is not on it
 
 
 def _rotvec(rot: np.ndarray) -> np.ndarray:
@@ -151,6 +155,7 @@ class ScriptedExpert:
         self._finger_axis = self._current_finger_axis()  # target finger axis (world, horizontal)
         self._blocked: list[np.ndarray] = []  # sides where a descent was stopped by a collision
         self._anchor = np.zeros(3)  # a phase's fixed target
+        self._plan_xy = np.zeros(2)  # the object's box centre when its grasp side was chosen
         self._last_pos = self._eef()[0]  # grip point at the previous step
         self._integral = np.zeros(
             3
@@ -231,6 +236,7 @@ class ScriptedExpert:
         """Choose the grasp side and depth: the gripper, swept from the approach height down to the grasp, must
         stay clear of every other geom (up to ``CLEARANCE_CAP``); then deeper grasps, smaller yaw turns and
         sides nearer the robot win (far reaches run into the elbow's limit)."""
+        self._plan_xy = 0.5 * (lo[:2] + hi[:2])
         centre, radius = self._rim(lo, hi)
         gripper = self._gripper_points()
         # Grip heights (relative to the rim) at which the gripper is checked: the candidate depths, then the
@@ -333,6 +339,13 @@ class ScriptedExpert:
         pos, rot = self._eef()
 
         if self.phase in ("lift", "carry", "lower") and not self._holding(state, pos):
+            self._enter("regrasp")
+        moved = np.linalg.norm(0.5 * (lo[:2] + hi[:2]) - self._plan_xy) > REPLAN_DISTANCE
+        if self.phase in ("approach", "descend") and self._side is not None and moved:
+            self._side = None  # displaced before the grasp: choose a side at its new place
+            self._enter("regrasp")
+        if self.phase in ("retreat", "done") and np.linalg.norm(obj[:2] - place[:2]) > OFF_TARGET:
+            self._side = None  # knocked off the target after the release: pick it up again
             self._enter("regrasp")
 
         if self.phase == "approach":

@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from vlaprobe.configs.train import SplitConfig
 
 
 @dataclass(frozen=True)
@@ -53,6 +57,32 @@ def split_episodes(episode_tasks: np.ndarray, test_fraction: float, folds: int, 
         Fold(train=np.flatnonzero(assignment != k), test=np.flatnonzero(assignment == k))
         for k in range(folds)
     ]
+
+
+def leave_one_task_out(episode_tasks: np.ndarray) -> list[Fold]:
+    """One fold per task: train on every other task's episodes, test on this task's (cross-task probes)."""
+    tasks = np.asarray(episode_tasks)
+    if len(np.unique(tasks)) < 2:
+        raise ValueError("leave-one-task-out needs episodes of at least 2 tasks")
+    return [
+        Fold(train=np.flatnonzero(tasks != task), test=np.flatnonzero(tasks == task))
+        for task in np.unique(tasks)
+    ]
+
+
+def make_folds(episode_tasks: np.ndarray, cfg: SplitConfig, seed: int) -> list[Fold]:
+    """The folds ``cfg`` asks for: :func:`split_episodes` or, with ``--split leave-one-task-out``,
+    :func:`leave_one_task_out` (a one-line error when the episodes come from one task only)."""
+    if cfg.by == "leave-one-task-out":
+        if len(np.unique(episode_tasks)) < 2:
+            from vlaprobe.errors import VlaprobeError
+
+            raise VlaprobeError(
+                "--split leave-one-task-out needs episodes of at least 2 tasks, the store has 1; collect more "
+                "tasks (--tasks) or use the default --split episode"
+            )
+        return leave_one_task_out(episode_tasks)
+    return split_episodes(episode_tasks, cfg.test_fraction, cfg.folds, seed)
 
 
 def rows_of(episode: np.ndarray, episodes: np.ndarray) -> np.ndarray:

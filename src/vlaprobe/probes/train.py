@@ -47,7 +47,7 @@ from vlaprobe.probes.results import (
     read_evaluation,
     write_evaluation,
 )
-from vlaprobe.probes.split import Fold, LabelFilter, check_no_leak, filter_labels, rows_of, split_episodes
+from vlaprobe.probes.split import Fold, LabelFilter, check_no_leak, filter_labels, make_folds, rows_of
 from vlaprobe.probes.trainer import fit_probes
 
 log = logging.getLogger("vlaprobe.probes")
@@ -199,7 +199,7 @@ def _split(data: ProbeData, cfg: TrainConfig, seed: int) -> list[Fold]:
             f"--split.folds {cfg.split.folds} needs at least {cfg.split.folds} episodes, the store has {n}; "
             "lower --split.folds or collect more"
         )
-    folds = split_episodes(data.episode_tasks, cfg.split.test_fraction, cfg.split.folds, seed)
+    folds = make_folds(data.episode_tasks, cfg.split, seed)
     if any(not len(f.test) or not len(f.train) for f in folds):
         raise VlaprobeError(
             f"no task has 2 episodes ({n} episodes of {len(set(data.episode_tasks.tolist()))} tasks), so none "
@@ -246,9 +246,7 @@ def _observer(
             )
     same_episodes = observer.episode_keys == data.episode_keys
     if not same_episodes:
-        folds = split_episodes(
-            observer.episode_tasks, cfg.split.test_fraction, cfg.split.folds, seeds["split"]
-        )
+        folds = make_folds(observer.episode_tasks, cfg.split, seeds["split"])
     fold_rows = [(rows_of(observer.episode, f.train), rows_of(observer.episode, f.test)) for f in folds]
     for train_rows, test_rows in fold_rows:
         check_no_leak(observer.episode, train_rows, test_rows)

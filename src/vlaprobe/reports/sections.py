@@ -30,7 +30,11 @@ class Section:
     """What the template renders (a dataclass, typically read from a JSON file of the run)."""
 
 
-SECTION_PROVIDERS: list[str] = ["vlaprobe.cognition.monitor:report_section"]
+SECTION_PROVIDERS: list[str] = [
+    "vlaprobe.cognition.monitor:report_section",
+    "vlaprobe.collection.diversity:report_section",
+    "vlaprobe.probes.hypotheses_run:report_section",
+]
 """``"module:function"`` providers, each ``(probes_folder: Path) -> Section | None``, in page order."""
 
 

@@ -76,7 +76,10 @@ class StepRecord:
     terminal: bool
     """The last row of the episode."""
     perturbed: bool
-    """A perturbation (:meth:`EpisodeControl.drop`) overrode the driver's action on this row."""
+    """A perturbation changed this row: a drop (:meth:`EpisodeControl.drop`) overrode the driver's action, or a
+    move (:meth:`EpisodeControl.move`) displaced an object just before this observation."""
+    perturbation: str
+    """Which: "drop", "move", or "" (none)."""
     timings: StepTimings
     """Where this step's time went."""
 
@@ -90,6 +93,7 @@ class EpisodeControl:
         self._running = threading.Event()
         self._running.set()
         self._drop_steps = 0
+        self._move: tuple[str, tuple[float, float]] | None = None
 
     def stop(self) -> None:
         """End the episode after the current step (a paused loop wakes up and ends)."""
@@ -109,6 +113,17 @@ class EpisodeControl:
             raise VlaprobeError(f"drop needs at least 1 step, got {steps}")
         with self._lock:
             self._drop_steps = steps
+
+    def move(self, name: str, xy: tuple[float, float] | np.ndarray) -> None:
+        """Move object ``name`` to (x, y) on the table before the next observation (the driver re-plans)."""
+        with self._lock:
+            self._move = (name, (float(xy[0]), float(xy[1])))
+
+    def take_move(self) -> tuple[str, tuple[float, float]] | None:
+        """The pending move, if any (consumes it)."""
+        with self._lock:
+            move, self._move = self._move, None
+            return move
 
     @property
     def stopped(self) -> bool:
@@ -157,7 +172,8 @@ def run_episode(
     after the last action is not recorded: nothing was learned from it and no action follows), or when
     ``control`` is stopped (then no further row is yielded; the last one yielded is not marked terminal).
     With ``post_success_steps == 0`` the success observation is the last row: it is the first state in which
-    the goal atom holds.
+    the goal atom holds. Once ``control`` has perturbed the episode, a success that is lost again (an object
+    knocked off its target) no longer counts: the episode goes on until the task succeeds anew.
     """
     if max_steps < 1:
         raise VlaprobeError(f"--env.max-steps must be at least 1, got {max_steps}")
@@ -170,9 +186,16 @@ def run_episode(
     if obs.image is None:
         raise VlaprobeError("the simulator renders no image; the model needs it (drop --env.no-render)")
     success_row: int | None = None
+    perturbed_any = False
     for t in range(max_steps + 1):
+        move = control.take_move() if control is not None else None
+        if move is not None:
+            obs = env.place_object(*move)
+            perturbed_any = True
         if obs.success and success_row is None:
             success_row = t
+        elif not obs.success and perturbed_any:
+            success_row = None
         reached = success_row is not None and t >= success_row + post_success_steps
         terminal = reached or t == max_steps
         if terminal and success_row is None:
@@ -183,7 +206,7 @@ def run_episode(
         t1 = time.perf_counter()
         out = policy.step(obs.image, env.instruction)
         t2 = time.perf_counter()
-        perturbed = False
+        perturbation = "move" if move is not None else ""
         if terminal:
             action = np.full(7, np.nan)
         else:
@@ -191,7 +214,7 @@ def run_episode(
             if control is not None and control.take_drop():
                 action = action.copy()
                 action[6] = GRIPPER_OPEN
-                perturbed = True
+                perturbation, perturbed_any = "drop", True
         t3 = time.perf_counter()
         yield StepRecord(
             t=t,
@@ -208,7 +231,8 @@ def run_episode(
             action_tokens=out.action_tokens,
             success=obs.success,
             terminal=terminal,
-            perturbed=perturbed,
+            perturbed=bool(perturbation),
+            perturbation=perturbation,
             timings=StepTimings(
                 env_ms=env_ms,
                 label_ms=(t1 - t0) * 1e3,

@@ -1,0 +1,160 @@
+"""How diverse a store's ground truth is: distinct object states, atoms that change within episodes, base rates.
+
+A probe can only show that a model encodes an atom if the atom varies independently of what is trivially known
+(the task, the elapsed time). These figures say how much the data allow that: ``vlaprobe info`` prints them
+and the report shows them next to the probes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class HeadDiversity:
+    """One label head's diversity over a set of episodes."""
+
+    atoms: tuple[str, ...]
+    """Atom names, in column order."""
+    base_rate: tuple[float, ...]
+    """Share of all rows in which each atom is true."""
+    episodes_varying: tuple[int, ...]
+    """Per atom, in how many episodes it changes value at least once."""
+    distinct_states: int
+    """Distinct rows (state vectors of this head) over all episodes."""
+    distinct_first_states: int
+    """Distinct state vectors at the first row of the episodes."""
+
+    @property
+    def varying(self) -> int:
+        """Atoms that change within at least one episode."""
+        return sum(n > 0 for n in self.episodes_varying)
+
+    @property
+    def ever_true(self) -> int:
+        return sum(r > 0 for r in self.base_rate)
+
+    @property
+    def always_true(self) -> int:
+        return sum(r == 1 for r in self.base_rate)
+
+
+@dataclass(frozen=True)
+class Diversity:
+    """Per head (``object``, ``action``) :class:`HeadDiversity`, and the rows and episodes counted."""
+
+    episodes: int
+    rows: int
+    heads: dict[str, HeadDiversity]
+    perturbed_episodes: int = 0
+    """Episodes with at least one perturbation mark (0 for stores collected without ``--perturb``)."""
+
+    def as_dict(self) -> dict[str, object]:
+        """JSON-ready summary (counts; per-atom lists in atom order)."""
+        return {
+            "episodes": self.episodes,
+            "rows": self.rows,
+            "perturbed_episodes": self.perturbed_episodes,
+            "heads": {
+                head: {
+                    "atoms": len(h.atoms),
+                    "distinct_states": h.distinct_states,
+                    "distinct_first_states": h.distinct_first_states,
+                    "varying_atoms": h.varying,
+                    "ever_true": h.ever_true,
+                    "always_true": h.always_true,
+                    "base_rate": dict(zip(h.atoms, (round(r, 5) for r in h.base_rate), strict=True)),
+                    "episodes_varying": dict(zip(h.atoms, h.episodes_varying, strict=True)),
+                }
+                for head, h in self.heads.items()
+            },
+        }
+
+
+def head_diversity(atoms: Sequence[str], episodes: Sequence[np.ndarray]) -> HeadDiversity:
+    """:class:`HeadDiversity` of one head from its per-episode (rows, atoms) bool arrays."""
+    n = len(atoms)
+    if not episodes:
+        return HeadDiversity(tuple(atoms), (0.0,) * n, (0,) * n, 0, 0)
+    rows = np.concatenate([np.asarray(e, dtype=bool).reshape(-1, n) for e in episodes])
+    varying = np.zeros(n, dtype=np.int64)
+    for e in episodes:
+        e = np.asarray(e, dtype=bool).reshape(-1, n)
+        varying += (e != e[:1]).any(axis=0) if len(e) else 0
+    first = np.stack([np.asarray(e, dtype=bool).reshape(-1, n)[0] for e in episodes if len(e)])
+    return HeadDiversity(
+        atoms=tuple(atoms),
+        base_rate=tuple(float(r) for r in rows.mean(axis=0)) if len(rows) else (0.0,) * n,
+        episodes_varying=tuple(int(v) for v in varying),
+        distinct_states=len(np.unique(np.packbits(rows, axis=1), axis=0)) if len(rows) else 0,
+        distinct_first_states=len(np.unique(np.packbits(first, axis=1), axis=0)),
+    )
+
+
+def diversity(
+    atom_names: Mapping[str, Sequence[str]],
+    episodes: Sequence[Mapping[str, np.ndarray]],
+    perturbed_episodes: int = 0,
+) -> Diversity:
+    """:class:`Diversity` from episodes given as head -> (rows, atoms) bool arrays."""
+    heads = {head: head_diversity(names, [e[head] for e in episodes]) for head, names in atom_names.items()}
+    rows = sum(len(e[next(iter(atom_names))]) for e in episodes)
+    return Diversity(len(episodes), rows, heads, perturbed_episodes)
+
+
+def store_diversity(path: object, success_only: bool = False) -> Diversity:
+    """:class:`Diversity` of an activation store (reads only the atom arrays and the perturbation marks)."""
+    from vlaprobe.collection.store import ATOM_ARRAYS, ActivationStore
+
+    store = ActivationStore.open(path)  # type: ignore[arg-type]
+    names = store.atom_names
+    episodes, perturbed = [], 0
+    for info in store.episodes(success_only=success_only):
+        arrays = store.episode(info.key)
+        episodes.append({head: np.asarray(arrays[ATOM_ARRAYS[head]]) for head in names})
+        perturbed += bool(arrays.attrs.get("perturbations"))
+    return diversity(names, episodes, perturbed)
+
+
+def summary_lines(d: Diversity) -> list[str]:
+    """The figures as text lines (``vlaprobe info``)."""
+    lines = [f"diversity {d.episodes} episodes, {d.rows} rows, {d.perturbed_episodes} perturbed episodes"]
+    for head, h in d.heads.items():
+        lines.append(
+            f"  {head:>6}: {h.distinct_states} distinct state vectors ({h.distinct_first_states} at the first row); "
+            f"{h.varying} of {len(h.atoms)} atoms change within an episode; {h.ever_true} ever true, "
+            f"{h.always_true} always true"
+        )
+    return lines
+
+
+def report_section(probes: object) -> object | None:
+    """Report section provider: the diversity of the store the probes were trained on (if it is still there)."""
+    import json
+    from pathlib import Path
+
+    from vlaprobe.reports.sections import Section
+
+    try:
+        meta = json.loads((Path(str(probes)) / "probes.json").read_text())
+        store = Path(meta["config"]["store"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if not (store / "zarr.json").is_file():
+        return None
+    d = store_diversity(store)
+    rows = [
+        {"head": head, "atom": a, "base_rate": r, "episodes_varying": n}
+        for head, h in d.heads.items()
+        for a, r, n in zip(h.atoms, h.base_rate, h.episodes_varying, strict=True)
+        if n > 0
+    ]
+    return Section(
+        id="diversity",
+        title="How diverse the data are",
+        template="diversity.html",
+        data={"summary": d.as_dict(), "store": str(store), "varying": rows},
+    )

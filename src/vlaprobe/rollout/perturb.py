@@ -1,0 +1,175 @@
+"""Perturbations during an episode (``--perturb SPEC``): drop the grasped object, displace it before the grasp,
+knock it off its place target after placement.
+
+A :class:`PerturbSpec` gives each kind a probability per episode. :class:`Perturber` draws, from the
+episode's seed, which kinds an episode gets and when, watches the records of the one step loop
+(:func:`vlaprobe.rollout.run_episode`) and asks its :class:`~vlaprobe.rollout.loop.EpisodeControl` for the
+perturbation at the chosen moment: ``drop`` is the control's existing forced gripper opening; ``displace``
+and ``knock_off`` move the object to a free spot on the table (the loop applies the move between two steps and
+observes again). The driver sees only the consequences (the expert re-plans: it re-grasps a dropped or
+displaced object and picks a knocked-off one up again); detectors and cognition read the real simulator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vlaprobe.errors import VlaprobeError
+from vlaprobe.rollout.loop import EpisodeControl
+from vlaprobe.symbols import Goal, Scene, WorldState
+
+KINDS = ("drop", "displace", "knock_off")
+"""Perturbation kinds, in the order their draws are made."""
+KIND_CODE = {kind: i + 1 for i, kind in enumerate(KINDS)}
+"""Code of each kind in the store's per-step ``perturbation`` array (0: none)."""
+DROP_STEPS = 8
+"""Steps the gripper is forced open for a drop (the live monitor's drop button uses the same)."""
+LIFTED = 0.04
+"""Height (metres) of the held object's bottom above the table from which a drop may happen."""
+WORKSPACE = ((-0.22, -0.20), (0.16, 0.30))
+"""(x, y) low and high corners of the table area a moved object may land in (the robot's reach)."""
+CLEARANCE = 0.02
+"""Gap (metres) kept between a moved object's footprint and every other object's."""
+DROP_AWAY = 0.12
+"""Least horizontal distance (metres) of the held object from the place target for a drop: it falls onto the
+table, not onto the target (which would end the task without a re-grasp)."""
+KNOCK_DISTANCE = (0.12, 0.22)
+"""Distance range (metres) of a knocked-off object's landing spot from the place target's origin."""
+
+
+@dataclass(frozen=True)
+class PerturbSpec:
+    """Probability per episode of each perturbation kind (``--perturb drop=0.5,knock_off=0.3``)."""
+
+    drop: float = 0.0
+    displace: float = 0.0
+    knock_off: float = 0.0
+
+    @classmethod
+    def parse(cls, text: str, flag: str = "--perturb") -> PerturbSpec:
+        """``"kind=p,kind=p"`` with kinds from :data:`KINDS` and p in [0, 1]; "" is no perturbation."""
+        values: dict[str, float] = {}
+        for part in filter(None, (p.strip() for p in text.split(","))):
+            kind, sep, value = part.partition("=")
+            kind = kind.strip().replace("-", "_")
+            if kind not in KINDS:
+                raise VlaprobeError(
+                    f"{flag}: unknown perturbation {kind!r}; use kind=probability with kinds {', '.join(KINDS)}"
+                    " (e.g. drop=0.5,knock_off=0.3)"
+                )
+            try:
+                p = float(value) if sep else float("nan")
+            except ValueError:
+                p = float("nan")
+            if not 0.0 <= p <= 1.0:
+                raise VlaprobeError(f"{flag}: {kind} needs a probability in [0, 1], got {value.strip()!r}")
+            values[kind] = p
+        return cls(**values)
+
+    @property
+    def any(self) -> bool:
+        return any(getattr(self, k) > 0 for k in KINDS)
+
+    def text(self) -> str:
+        return ",".join(f"{k}={getattr(self, k):g}" for k in KINDS if getattr(self, k) > 0)
+
+
+@dataclass
+class Planned:
+    """One perturbation an episode gets: its kind, its trigger and, once applied, the row it hit."""
+
+    kind: str
+    after: int
+    """drop: held rows with the object lifted and away from the target before it; displace: the row (if still before the grasp);
+    knock_off: rows after success (with nothing grasped) before it."""
+    row: int | None = None
+    """The row at which it was applied (None: its moment never came)."""
+
+
+def free_spot(
+    world: WorldState,
+    index: int,
+    rng: np.random.Generator,
+    near: np.ndarray | None = None,
+    tries: int = 200,
+) -> np.ndarray | None:
+    """An (x, y) on the table where object ``index``'s footprint keeps :data:`CLEARANCE` from every other
+    object (its current spot excluded by 5 cm), inside :data:`WORKSPACE`; with ``near``, at a distance in
+    :data:`KNOCK_DISTANCE` of that point. None when no spot is found."""
+    half = 0.5 * (world.aabb_hi[index, :2] - world.aabb_lo[index, :2])
+    centre_off = world.pos[index, :2] - 0.5 * (world.aabb_hi[index, :2] + world.aabb_lo[index, :2])
+    others = [i for i in range(len(world.pos)) if i != index]
+    lo, hi = np.array(WORKSPACE[0]), np.array(WORKSPACE[1])
+    for _ in range(tries):
+        if near is None:
+            xy = rng.uniform(lo, hi)
+        else:
+            angle, dist = rng.uniform(0, 2 * np.pi), rng.uniform(*KNOCK_DISTANCE)
+            xy = near[:2] + dist * np.array([np.cos(angle), np.sin(angle)])
+        if np.any(xy < lo) or np.any(xy > hi) or np.linalg.norm(xy - world.pos[index, :2]) < 0.05:
+            continue
+        box_lo, box_hi = xy - centre_off - half - CLEARANCE, xy - centre_off + half + CLEARANCE
+        if all(
+            np.any(box_hi < world.aabb_lo[j, :2]) or np.any(box_lo > world.aabb_hi[j, :2]) for j in others
+        ):
+            return xy
+    return None
+
+
+@dataclass
+class Perturber:
+    """Which perturbations one episode gets and when (drawn from its seed), applied through its control."""
+
+    spec: PerturbSpec
+    seed: int
+    scene: Scene
+    goal: Goal
+    planned: list[Planned] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        rng = np.random.default_rng([self.seed, 7919])
+        self.rng = np.random.default_rng([self.seed, 104729])
+        triggers = {"drop": (1, 6), "displace": (3, 25), "knock_off": (1, 4)}
+        for kind in KINDS:
+            hit = rng.random() < getattr(self.spec, kind)
+            after = int(rng.integers(*triggers[kind]))
+            if hit:
+                self.planned.append(Planned(kind, after))
+        self._pick = self.scene.tabletop.index(self.goal.pick)
+        self._place = self.scene.tabletop.index(self.goal.place)
+        self._held_lifted = 0
+        self._grasped_ever = False
+        self._success_rows = 0
+
+    def observe(
+        self, t: int, world: WorldState, grasped: bool, success: bool, control: EpisodeControl
+    ) -> str:
+        """Look at row ``t`` (its world, whether the pick object is grasped, the task's success); request
+        the perturbation due now from ``control``. Returns the kind requested, or ""."""
+        self._grasped_ever |= grasped
+        lifted = world.aabb_lo[self._pick, 2] - world.table_height > LIFTED
+        away = np.linalg.norm(world.pos[self._pick, :2] - world.pos[self._place, :2]) > DROP_AWAY
+        self._held_lifted += int(grasped and lifted and away)
+        self._success_rows = self._success_rows + 1 if success and not grasped else 0
+        for p in self.planned:
+            if p.row is not None:
+                continue
+            if p.kind == "drop" and grasped and lifted and away and self._held_lifted > p.after:
+                control.drop(DROP_STEPS)
+            elif p.kind == "displace" and not self._grasped_ever and t == p.after:
+                xy = free_spot(world, self._pick, self.rng)
+                if xy is None:
+                    continue
+                control.move(self.goal.pick, xy)
+            elif p.kind == "knock_off" and self._success_rows > p.after:
+                xy = free_spot(world, self._pick, self.rng, near=world.pos[self._place])
+                if xy is None:
+                    continue
+                control.move(self.goal.pick, xy)
+            else:
+                continue
+            p.row = t + 1  # the next observation is the first one the perturbation changed
+            return p.kind
+        return ""

@@ -1,0 +1,80 @@
+"""Leave-one-task-out: one fold per task, no step of the held-out task in training, every episode tested once."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vlaprobe.configs.train import SplitConfig, TrainConfig
+from vlaprobe.errors import VlaprobeError
+from vlaprobe.probes import synthetic_data, train_on_data
+from vlaprobe.probes.split import check_no_leak, leave_one_task_out, make_folds, rows_of
+
+
+def test_each_fold_tests_one_task_and_trains_on_all_others_without_a_leak() -> None:
+    tasks = np.repeat([0, 1, 2, 5], [3, 2, 4, 1])
+    folds = leave_one_task_out(tasks)
+    assert len(folds) == 4
+    episode = np.repeat(np.arange(len(tasks)), 7)  # 7 steps per episode
+    for fold, task in zip(folds, [0, 1, 2, 5], strict=True):
+        assert set(tasks[fold.test]) == {task} and task not in set(tasks[fold.train])
+        assert len(fold.train) + len(fold.test) == len(tasks)
+        train_rows, test_rows = rows_of(episode, fold.train), rows_of(episode, fold.test)
+        check_no_leak(episode, train_rows, test_rows)
+        assert not set(tasks[episode[train_rows]]) & set(tasks[episode[test_rows]])
+    assert sorted(np.concatenate([f.test for f in folds]).tolist()) == list(range(len(tasks)))
+    with pytest.raises(VlaprobeError, match="at least 2 tasks"):
+        make_folds(np.zeros(4, np.int64), SplitConfig(by="leave-one-task-out"), 0)
+
+
+def test_training_with_leave_one_task_out_tests_every_episode_in_its_tasks_fold(tmp_path: Path) -> None:
+    data = synthetic_data(
+        num_tasks=3,
+        episodes_per_task=3,
+        steps_per_episode=20,
+        num_layers=3,
+        hidden_size=16,
+        num_object=10,
+        num_action=3,
+        signal=8.0,
+        seed=2,
+    )
+    cfg = TrainConfig(
+        split=SplitConfig(by="leave-one-task-out"), bootstrap=50, auprc_bootstrap=0, shuffled_control=False
+    )
+    out = train_on_data(data, cfg, tmp_path)
+    ev = json.loads((out / "evaluation.json").read_text())
+    assert ev["split"]["folds"] == 3
+    assert sorted(ev["split"]["test_episodes"]) == sorted(data.episode_keys)
+    best = ev["heads"]["object"]["best"]
+    assert best["value"] > 0.6  # the synthetic signal is shared by all tasks: it transfers
+
+
+def _evaluation(folder: Path, best: int, values: list[list[float]], predicates: list[str]) -> Path:
+    folder.mkdir()
+    level = {"value": values, "low": [[v - 0.05 for v in row] for row in values], "high": values}
+    head = {
+        "best": {"index": best},
+        "predicates": predicates,
+        "probe": {"balanced_accuracy": {"predicate": level}},
+    }
+    (folder / "evaluation.json").write_text(json.dumps({"heads": {"object": head}}))
+    return folder
+
+
+def test_split_comparison_reads_each_folder_at_its_best_layer(tmp_path: Path) -> None:
+    from vlaprobe.probes.cross_task import split_comparison
+
+    within = _evaluation(tmp_path / "w", 1, [[0.6, 0.7], [0.9, 0.8]], ["left-of", "on"])
+    across = _evaluation(tmp_path / "a", 0, [[0.65, 0.55, 0.5], [0.1, 0.1, 0.1]], ["left-of", "on", "inside"])
+    rows = split_comparison(within, across)
+    assert [(r.predicate, r.within, r.across) for r in rows] == [
+        ("left-of", 0.9, 0.65),
+        ("on", 0.8, 0.55),
+        ("inside", None, 0.5),
+    ]
+    assert rows[0].drop == pytest.approx(0.25) and rows[2].drop is None
+    assert rows[1].within_interval == (pytest.approx(0.75), 0.8)

@@ -1,0 +1,93 @@
+"""Perturbations: the spec, free spots on hand-made worlds, when a Perturber fires, and the loop applying it."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from tests.collection.fakes import GOAL, SCENE, FakeEnv, FakeExpert, FakePolicy, succeeds
+
+from vlaprobe.configs.policy import PolicyConfig
+from vlaprobe.errors import VlaprobeError
+from vlaprobe.rollout import EpisodeControl, run_episode
+from vlaprobe.rollout.perturb import CLEARANCE, DROP_STEPS, WORKSPACE, Perturber, PerturbSpec, free_spot
+from vlaprobe.symbols import WorldState
+
+
+def test_spec_parses_kinds_and_refuses_unknown_kinds_and_bad_probabilities() -> None:
+    assert PerturbSpec.parse("") == PerturbSpec() and not PerturbSpec().any
+    spec = PerturbSpec.parse("drop=0.5, knock-off=1")
+    assert spec == PerturbSpec(drop=0.5, knock_off=1.0) and spec.any and spec.text() == "drop=0.5,knock_off=1"
+    with pytest.raises(VlaprobeError, match="unknown perturbation 'shake'"):
+        PerturbSpec.parse("shake=0.2")
+    for bad in ("drop=1.5", "drop=-0.1", "drop=x", "drop", "drop=nan"):
+        with pytest.raises(VlaprobeError, match="needs a probability in \\[0, 1\\]"):
+            PerturbSpec.parse(bad)
+
+
+def world(pos: np.ndarray, half: float = 0.04) -> WorldState:
+    env = FakeEnv(0, None)
+    env.reset(0)
+    return dataclasses.replace(env.world_state(), pos=pos, aabb_lo=pos - half, aabb_hi=pos + half)
+
+
+def test_free_spot_keeps_clear_of_every_other_object_and_inside_the_workspace() -> None:
+    pos = np.array([[0.0, 0.0, 0.94], [0.1, 0.1, 0.94], [-0.1, 0.2, 0.94]])
+    w = world(pos)
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        xy = free_spot(w, 0, rng)
+        assert xy is not None
+        assert np.all(xy >= WORKSPACE[0]) and np.all(xy <= WORKSPACE[1])
+        for j in (1, 2):  # footprints (8 cm boxes) apart by at least the clearance on one axis
+            assert np.max(np.abs(xy - pos[j, :2])) >= 0.08 + CLEARANCE - 1e-9
+    near = free_spot(w, 0, rng, near=pos[1])
+    assert near is not None and 0.12 <= np.linalg.norm(near - pos[1, :2]) <= 0.22
+    crowded = world(pos, half=0.5)  # every spot overlaps another object
+    assert free_spot(crowded, 0, rng) is None
+
+
+def test_perturber_draws_from_the_seed_and_fires_at_its_moments() -> None:
+    always = PerturbSpec(drop=1.0, displace=1.0, knock_off=1.0)
+    a, b = Perturber(always, 3, SCENE, GOAL), Perturber(always, 3, SCENE, GOAL)
+    assert [(p.kind, p.after) for p in a.planned] == [(p.kind, p.after) for p in b.planned]
+    assert [p.kind for p in a.planned] == ["drop", "displace", "knock_off"]
+    assert Perturber(PerturbSpec(), 3, SCENE, GOAL).planned == []
+    on_table = np.array([[0.0, 0.0, 0.94], [0.1, 0.1, 0.94], [-0.1, 0.2, 0.94]])
+    lifted = on_table + np.array([0.0, 0.0, 0.1])
+    control, fired = EpisodeControl(), []
+    displace, drop, knock = (a.planned[1].after, a.planned[0].after, a.planned[2].after)
+    t = 0
+    for _ in range(displace + 2):  # before the grasp: the displacement fires at its row
+        fired.append((t, a.observe(t, world(on_table), False, False, control)))
+        t += 1
+    assert [k for _, k in fired if k] == ["displace"] and fired[displace][1] == "displace"
+    assert control.take_move() is not None and a.planned[1].row == displace + 1
+    for _ in range(drop):  # held and lifted: the drop fires after `drop` such rows
+        assert a.observe(t, world(lifted), True, False, control) == ""
+        t += 1
+    assert a.observe(t, world(lifted), True, False, control) == "drop"
+    assert [control.take_drop() for _ in range(DROP_STEPS + 1)] == [True] * DROP_STEPS + [False]
+    t += 1
+    for _ in range(knock):  # success with nothing grasped: the knock-off fires after `knock` rows
+        assert a.observe(t, world(on_table), False, True, control) == ""
+        t += 1
+    assert a.observe(t, world(on_table), False, True, control) == "knock_off"
+    name, xy = control.take_move()  # type: ignore[misc]
+    assert name == GOAL.pick and 0.12 <= np.linalg.norm(np.asarray(xy) - on_table[1, :2]) <= 0.22
+    assert a.observe(t + 1, world(on_table), False, True, control) == ""  # each fires once
+
+
+def test_the_loop_applies_a_move_before_the_next_observation_and_marks_the_row() -> None:
+    init = next(i for i in range(12) if succeeds(0, i))
+    env, control = FakeEnv(0, None), EpisodeControl()
+    rows = []
+    for r in run_episode(
+        env, FakePolicy(PolicyConfig()), FakeExpert(env, 0), init=init, max_steps=20, control=control
+    ):
+        rows.append(r)
+        if r.t == 0:
+            control.move("bowl", (0.05, 0.1))
+    assert env.moves == [(1, "bowl", (0.05, 0.1))]
+    assert [r.perturbation for r in rows[:3]] == ["", "move", ""] and rows[1].perturbed
