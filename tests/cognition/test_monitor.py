@@ -153,7 +153,7 @@ def test_the_report_shows_the_monitor_section(run: tuple[Path, Path], tmp_path: 
         num_action=2, seed=0,
     )  # fmt: skip
     fast = TrainConfig(
-        bootstrap=5, auprc_bootstrap=0, shuffled_permutations=1, probe=ProbeConfig(min_updates=5)
+        bootstrap=5, auprc_bootstrap=0, shuffled_permutations=1, probe=ProbeConfig(c_grid=(0.1,), max_iter=50)
     )
     report_probes = train_on_data(data, fast, tmp_path / "probes")
     assert report_section(report_probes) is None  # no monitor.json: no section

@@ -66,6 +66,9 @@ involves(towards_not_one, G, should_move_towards(O)) :- violation(towards_not_on
 
 % --- over the history ------------------------------------------------------------------------------------
 % (on its place only: while being picked, the object may lose and regain contact with what it stood on)
+message(on_while_grasped, "the task's object is on its place while still grasped").
+violation(on_while_grasped, (on(X,Y), grasped(X))) :- goal(X, Y), on(X, Y), grasped(X).
+
 message(placed_without_grasp, "the task's object came to rest on its place without having been grasped").
 violation(placed_without_grasp, (on(X,Y), grasped(X))) :-
     goal(X, Y), on(X, Y), not(prev(on(X, Y))), not(ever(grasped(X))).
