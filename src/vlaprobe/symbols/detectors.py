@@ -51,7 +51,10 @@ of its collision-geom bounding box.
   released object comes to rest (``resting``: touching the table or another object, moving slower than
   ``REST_SPEED`` = 1 cm/s and turning slower than ``REST_SPIN`` = 0.1 rad/s; a bowl dropped from 1.5 cm
   rests 4-5 steps later); resting away from the target, the object to pick is the target again. Nothing
-  while the goal holds and the object is not grasped.
+  while the goal holds and the object is not grasped, and nothing from the first step the goal holds after a
+  release until the object comes to rest: a placed bowl that bounces off the plate for a step (episode
+  t07_i02 of the default run: ``on`` 1, 1, 0, 1) does not get the plate as its target again; if it comes to
+  rest off the plate, the object to pick is the target again.
 """
 
 from __future__ import annotations
@@ -220,6 +223,7 @@ class Labeler:
         """Start a new episode: nothing held, nothing being placed."""
         self._held = -1
         self._placing = False
+        self._landed = False  # released, and on its place at some step since: no directive while it settles
 
     def __call__(self, state: WorldState) -> tuple[np.ndarray, np.ndarray]:
         """(object bits (224,), action bits (12,)) as bool arrays."""
@@ -258,13 +262,17 @@ class Labeler:
             ]
         )
         towards = np.zeros(n, dtype=bool)
+        placed = bool(on[self._pick, self._place])
         if grasped[self._pick]:
-            self._placing = True
-        elif self._placing and resting(scene, state, self._pick):
-            self._placing = False
-        if grasped[self._pick] or (self._placing and not on[self._pick, self._place]):
+            self._placing, self._landed = True, False
+        else:
+            self._landed |= self._placing and placed
+            if (self._placing or self._landed) and resting(scene, state, self._pick):
+                self._placing = False
+                self._landed = placed  # at rest off its place (knocked off): the object to pick again
+        if grasped[self._pick] or (self._placing and not placed and not self._landed):
             towards[self._place] = True
-        elif not on[self._pick, self._place]:
+        elif not placed and not self._landed:
             towards[self._pick] = True
         act = np.concatenate([grasped, towards])
         return obj, act

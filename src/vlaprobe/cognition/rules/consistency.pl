@@ -59,9 +59,9 @@ involves(order_cycle, (R,M), B) :- violation(order_cycle, (R,M)), edge(R, X, Y, 
 message(grasped_many, "more than one object is grasped").
 violation(grasped_many, (grasped(X), grasped(Y))) :- grasped(X), grasped(Y), X @< Y.
 
-message(towards_not_one, "not exactly one object to move towards while the goal does not hold").
+message(towards_not_one, "not exactly one object to move towards while the goal does not hold (nor held recently)").
 violation(towards_not_one, on(X,Y)) :-
-    goal(X, Y), not(on(X, Y)), findall(O, should_move_towards(O), L), length(L, N), N \= 1.
+    goal(X, Y), not(on(X, Y)), not(recent(on(X, Y))), findall(O, should_move_towards(O), L), length(L, N), N \= 1.
 involves(towards_not_one, G, should_move_towards(O)) :- violation(towards_not_one, G), should_move_towards(O).
 
 % --- over the history ------------------------------------------------------------------------------------
