@@ -210,7 +210,7 @@ def fit_logistic(
     wy = y if weight is None else y * weight
     total = counts if weight is None else weight.sum(0)
     freq = (wy.sum(0) / total.clamp_min(1e-12)).clamp(1e-4, 1 - 1e-4)
-    per_layer = 4 * (6 * n * k + (2 * history + 8) * k * (hidden + 1))
+    per_layer = 4 * (6 * n * max(k, 1) + (2 * history + 8) * max(k, 1) * (hidden + 1))
     chunk = max(1, min(num_layers, int(memory_mb * 2**20 // per_layer)))
     weights = torch.empty((num_layers, hidden, k))
     biases = torch.empty((num_layers, k))
