@@ -75,7 +75,9 @@ FINGER_SPEED = 0.005  # m/s: opening faster, the fingers let go; closing faster,
 SLIP_GAP = 0.001  # m: a finger this close to a slipping held object still holds it
 REST_SPEED = 0.01  # m/s: a released object moving slower (and turning slower than REST_SPIN) has come to rest
 REST_SPIN = 0.1  # rad/s
-GOAL_HOLD_STEPS = 3  # steps the goal must hold after a release before the place directive ends (= default debounce)
+GOAL_HOLD_STEPS = (
+    3  # steps the goal must hold after a release before the place directive ends (= default debounce)
+)
 
 
 def centers(state: WorldState) -> np.ndarray:
@@ -224,7 +226,9 @@ class Labeler:
         """Start a new episode: nothing held, nothing being placed."""
         self._held = -1
         self._placing = False
-        self._landed = False  # on its place for GOAL_HOLD_STEPS steps (or at rest on it): no directive any more
+        self._landed = (
+            False  # on its place for GOAL_HOLD_STEPS steps (or at rest on it): no directive any more
+        )
         self._on_steps = 0  # consecutive steps on its place, not grasped
 
     def __call__(self, state: WorldState) -> tuple[np.ndarray, np.ndarray]:
