@@ -58,7 +58,7 @@ def test_unknown_command_is_named(capsys: pytest.CaptureFixture[str]) -> None:
 def test_run_config_round_trips_through_json() -> None:
     cfg = RunConfig()
     cfg.collect.tasks = (0, 4)
-    cfg.train.probe.epochs = 7
+    cfg.train.probe.max_iter = 7
     data = json.loads(json.dumps(config_to_dict(cfg)))
     assert config_from_dict(RunConfig, data) == cfg
 

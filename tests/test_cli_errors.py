@@ -23,7 +23,9 @@ from vlaprobe.probes import train as train_module
 from vlaprobe.probes.outfolder import locked
 from vlaprobe.probes.results import read_evaluation
 
-FAST = dict(bootstrap=20, auprc_bootstrap=0, shuffled_permutations=1, probe=ProbeConfig(min_updates=5))
+FAST = dict(
+    bootstrap=20, auprc_bootstrap=0, shuffled_permutations=1, probe=ProbeConfig(c_grid=(0.1,), max_iter=50)
+)
 
 
 def one_line_error(capsys: pytest.CaptureFixture[str], argv: list[str]) -> str:
@@ -102,7 +104,7 @@ def test_failing_train_keeps_the_probe_config(store: Path, capsys: pytest.Captur
     out = store.parent / "probes"
     train_module.train_probes(TrainConfig(store=store, out=out, **FAST))
     before = folder_bytes(out)
-    for flag in (["--probe.lr", "inf"], ["--min-frequency", "nan"]):
+    for flag in (["--probe.tol", "inf"], ["--min-frequency", "nan"]):
         one_line_error(capsys, ["train", "--store", str(store), "--out", str(out), *flag])
     assert folder_bytes(out) == before
 
@@ -124,16 +126,16 @@ TRAIN_RANGES = [
     (["--split.folds", "0"], "--split.folds must be at least 1"),
     (["--split.test-fraction", "0"], "--split.test-fraction must be a number in (0, 1)"),
     (["--split.test-fraction", "1.5"], "--split.test-fraction"),
-    (["--probe.batch-size", "0"], "--probe.batch-size must be at least 1"),
-    (["--probe.lr", "-1"], "--probe.lr must be a positive finite number"),
-    (["--probe.lr", "nan"], "--probe.lr"),
+    (["--probe.max-iter", "0"], "--probe.max-iter must be at least 1"),
+    (["--probe.tol", "-1"], "--probe.tol must be a positive finite number"),
+    (["--probe.c-grid", "0.1", "nan"], "--probe.c-grid needs positive finite values"),
+    (["--probe.c-grid", "0.1", "1", "--probe.cv-folds", "1"], "--probe.cv-folds must be at least 2"),
     (["--probe.threshold", "1"], "--probe.threshold"),
     (["--probe.threshold", "0"], "--probe.threshold"),
     (["--min-frequency", "nan"], "--min-frequency"),
     (["--seed", "-1"], "--seed must be between 0"),
     (["--seed", str(2**70)], "--seed must be between 0"),
     (["--bootstrap", "-5"], "--bootstrap must be at least 0"),
-    (["--probe.epochs", "0"], "--probe.epochs must be at least 1"),
     (["--heads"], "--heads needs at least one head"),
     (
         ["--min-frequency", "0.5", "--max-frequency", "0.2"],
@@ -165,7 +167,7 @@ def test_train_options_out_of_range(
             ["run", "--collect.workers", "0"],
             "--collect.workers must be at least 1",
         ),  # the prefix the user typed
-        (["run", "--train.probe.lr", "inf"], "--train.probe.lr must be"),
+        (["run", "--train.probe.tol", "inf"], "--train.probe.tol must be"),
         (["run", "--collect.tasks", "0", "99"], "--collect.tasks [99] do not exist"),
         (["run", "--train.split.folds", "31"], "--train.split.folds 31 needs at least that many episodes"),
         (["run", "--report.dpi", "-5"], "--report.dpi must be"),
@@ -364,7 +366,7 @@ def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.Captu
         (["atoms", "--init", "99"], "--init 99 does not exist; the task has init states 0-49"),
         (["atoms", "--init", str(2**70)], "--init must be at most 2147483647"),
         (["collect", "--env.image-size", "100000", "--out", "OUT"], "--env.image-size must be at most 4096"),
-        (["train", "--probe.epochs", str(2**70)], "--probe.epochs must be at most 2147483647"),
+        (["train", "--probe.max-iter", str(2**70)], "--probe.max-iter must be at most 2147483647"),
         (["run", "--train.probe.device", "²", "--out", "OUT"], "--train.probe.device: unknown device '²'"),
         (["tasks", "--env.image-size", "-1"], "--env.image-size must be at least 16"),
         (["serve", "--port", "70000"], "--port must be between 0 and 65535"),
@@ -373,7 +375,6 @@ def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.Captu
         (["serve", "--replay-hz", "0.001"], "--replay-hz must be a number in [0.5, 60]"),
         (["serve", "--env.max-steps", "3000"], "--env.max-steps 3000 is more than the simulator runs"),
         (["serve", "--token-file", "NONE"], "is not a file"),
-        (["train", "--probe.epochs", "0"], "--probe.epochs must be at least 1"),
         (["collect", "--env.max-steps", "1200", "--out", "OUT"], "use at most 990"),
         (
             ["collect", "--env.max-steps", "995", "--env.settle-steps", "20", "--out", "OUT"],

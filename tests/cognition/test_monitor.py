@@ -11,7 +11,7 @@ import torch
 from tests.cognition.scenes import APPROACH, BOWL2, CARRY, COOKIES, PLACED, PLATE, VOCAB, arrays
 
 from vlaprobe.cli import main as cli_main
-from vlaprobe.cognition.monitor import MONITOR_FILE, monitor, report_section
+from vlaprobe.cognition.monitor import MONITOR_FILE, EpisodeFigures, goal_detection, monitor, report_section
 from vlaprobe.collection.store import EpisodeInfo
 from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.configs.monitor import MonitorConfig
@@ -104,6 +104,7 @@ def test_monitor_compares_truth_and_probes(run: tuple[Path, Path]) -> None:
     assert p.violations_per_100_steps == pytest.approx(2 * 100 / (3 * len(STEPS)))
     g = p.goal_detection
     assert (g.precision, g.mean_delay_steps) == (1.0, 0.0) and g.recall == pytest.approx(2 / 3)
+    assert (g.episodes, g.failed_episodes, g.false_alarms_per_100_steps) == (3, 0, 0.0)
     assert [e.goal_step_truth for e in result.per_episode] == [GOAL_STEP] * 3
     assert [e.goal_step_probes for e in result.per_episode] == [GOAL_STEP, GOAL_STEP, None]
     assert p.subgoal_accuracy == pytest.approx((3 * len(STEPS) - (len(STEPS) - GOAL_STEP)) / (3 * len(STEPS)))
@@ -141,7 +142,9 @@ def test_cli_prints_the_figures_as_json(
         "violations_per_100_steps", "violations", "goal_detection", "subgoal_accuracy", "belief_agreement",
         "flips_per_step", "flips_per_step_debounced",
     }  # fmt: skip
-    assert set(out["probes"]["goal_detection"]) == {"precision", "recall", "mean_delay_steps"}
+    assert set(out["probes"]["goal_detection"]) == {
+        "precision", "recall", "mean_delay_steps", "false_alarms_per_100_steps", "episodes", "failed_episodes",
+    }  # fmt: skip
 
 
 def test_the_report_shows_the_monitor_section(run: tuple[Path, Path], tmp_path: Path) -> None:
@@ -153,7 +156,7 @@ def test_the_report_shows_the_monitor_section(run: tuple[Path, Path], tmp_path: 
         num_action=2, seed=0,
     )  # fmt: skip
     fast = TrainConfig(
-        bootstrap=5, auprc_bootstrap=0, shuffled_permutations=1, probe=ProbeConfig(min_updates=5)
+        bootstrap=5, auprc_bootstrap=0, shuffled_permutations=1, probe=ProbeConfig(c_grid=(0.1,), max_iter=50)
     )
     report_probes = train_on_data(data, fast, tmp_path / "probes")
     assert report_section(report_probes) is None  # no monitor.json: no section
@@ -180,3 +183,30 @@ def test_bad_input_is_a_one_line_error(
     errors = capsys.readouterr().err.strip().splitlines()
     assert len(errors) == 3 and all(e.startswith("vlaprobe: error: ") for e in errors)
     assert f"{bad}:1:" in errors[2]
+
+
+def test_goal_detection_on_succeeding_and_failing_episodes_has_known_figures() -> None:
+    def ep(key: str, truth: int | None, probes: int | None, false_alarms: int = 0) -> EpisodeFigures:
+        return EpisodeFigures(key, 100, truth, probes, false_alarms, 0, 0, 1.0)
+
+    episodes = [
+        ep("hit", 50, 53),  # both: delay 3
+        ep("early", 60, 58),  # both: delay -2
+        ep("missed", 70, None),  # a success the probes miss
+        ep("alarm", None, 40, false_alarms=1),  # a failure the probes call a success
+        ep("quiet", None, None),  # a failure, rightly never reached
+    ]
+    g = goal_detection(episodes)
+    assert (g.precision, g.recall) == (pytest.approx(2 / 3), pytest.approx(2 / 3))
+    assert g.mean_delay_steps == pytest.approx(0.5)
+    assert g.false_alarms_per_100_steps == pytest.approx(100 * 1 / 500)
+    assert (g.episodes, g.failed_episodes) == (5, 2)
+
+
+def test_extra_stores_join_the_figures(run: tuple[Path, Path], tmp_path: Path) -> None:
+    store, probes = run
+    result = monitor(MonitorConfig(store=store, probes=probes, extra_stores=(store,), out=tmp_path))
+    assert result.episodes == 6 == result.probes.goal_detection.episodes
+    assert [e.key for e in result.per_episode][3:] == [
+        f"{store.name}/{e.key}" for e in result.per_episode[:3]
+    ]

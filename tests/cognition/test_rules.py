@@ -9,6 +9,7 @@ from tests.cognition.scenes import (
     APPROACH,
     BOWL,
     BOWL2,
+    CARRY,
     COOKIES,
     GOAL,
     PLATE,
@@ -40,6 +41,7 @@ CASES: dict[str, list[set[str]]] = {
     "grasped_many": [APPROACH | {f"grasped({A})", f"grasped({B})"}],
     "towards_not_one": [set()],
     "placed_without_grasp": [set(APPROACH), {f"on({BOWL},{PLATE})"}],
+    "on_while_grasped": [set(APPROACH), CARRY | {f"on({BOWL},{PLATE})"}],
     "inside_changed_closed": [set(APPROACH), APPROACH | {f"inside({A},{TOP})"}],
 }
 

@@ -63,3 +63,23 @@ def test_a_short_lapse_of_the_grasp_is_not_a_regression() -> None:
 def test_no_progress_for_stall_steps_raises_one_stalled_event() -> None:
     steps = run([APPROACH] * 25 + [CARRY] * 25, stall_steps=10)
     assert [(k, t) for k, t in kinds(steps) if k == "stalled"] == [("stalled", 10), ("stalled", 35)]
+
+
+def test_a_spurious_on_during_the_carry_is_a_violation_not_the_goal() -> None:
+    on = f"on({BOWL},{PLATE})"
+    steps = run([APPROACH] * 3 + [CARRY] * 4 + [CARRY | {on}] * 6 + [CARRY] * 4)
+    assert not any(s.goal_reached for s in steps)
+    assert "goal_reached" not in [k for k, _ in kinds(steps)] and "regression" not in [
+        k for k, _ in kinds(steps)
+    ]
+    fired = [(s.t, v.rule) for s in steps for v in s.violations if v.since == s.t]
+    assert fired == [(7, "on_while_grasped")]
+
+
+def test_the_goal_needs_a_grasp_before_it_and_none_while_it_holds() -> None:
+    # believed on the place without any grasp: not the goal (placed_without_grasp reports it)
+    steps = run([APPROACH] * 3 + [PLACED] * 5)
+    assert not any(s.goal_reached for s in steps) and steps[-1].progress < 1
+    # the same beliefs after a grasp and a release: the goal
+    steps = run([APPROACH] * 3 + [CARRY] * 3 + [SETTLING] + [PLACED] * 3)
+    assert steps[7].goal_reached and ("goal_reached", 7) in kinds(steps)

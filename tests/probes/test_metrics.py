@@ -11,6 +11,7 @@ from vlaprobe.probes.metrics import (
     average_precision,
     bootstrap_weights,
     confusion_by_group,
+    fixed_set,
     metrics_from_counts,
     summarize,
 )
@@ -148,3 +149,31 @@ def test_summarize_counts_the_resamples_that_define_each_average() -> None:
     assert s["atom"]["defined"][0].tolist() == [2, 3, 0]
     assert s["predicate"]["defined"][0].tolist() == [2, 3]
     assert s["layer"]["defined"].tolist() == [2]
+
+
+def test_interval_of_an_average_stays_centred_when_resamples_lose_rare_atoms() -> None:
+    """10 common atoms scored 0.8 and 5 rare ones (positive in one episode of 20) scored 0.5: the layer mean is
+    0.7. A third of the resamples miss the rare atoms' episode; averaging only the atoms they define would centre
+    the interval near 0.8. Over the fixed set of atoms its centre is the point."""
+    rng = np.random.default_rng(0)
+    episodes, rows = 20, 10
+    groups = np.repeat(np.arange(episodes), rows)
+    n = episodes * rows
+    truth = np.zeros((n, 15), bool)
+    truth[:, :10] = rng.random((n, 10)) < 0.5
+    truth[groups == 0, 10:] = True
+    pred = truth.copy()
+    flip = rng.random((n, 10)) < 0.2
+    pred[:, :10] ^= flip  # common atoms: 80% right in each class
+    pred[:, 10:] = False  # rare atoms: never predicted, balanced accuracy 0.5
+    logits = torch.where(torch.as_tensor(pred), 1.0, -1.0)[None].float()
+    weights = bootstrap_weights(episodes, 2000, seed=0)
+    point, res = atom_metrics(logits, truth, groups, episodes, 0.0, weights, 0)
+    layer = summarize(point["balanced_accuracy"], res["balanced_accuracy"], [np.arange(15)])["layer"]
+    value, low, high = float(layer["value"][0]), float(layer["low"][0]), float(layer["high"][0])
+    assert value == pytest.approx((10 * 0.8 + 5 * 0.5) / 15, abs=0.02)
+    fixed = np.nanmean(fixed_set(point["balanced_accuracy"], res["balanced_accuracy"]), axis=2)[:, 0]
+    changing = np.nanmean(res["balanced_accuracy"], axis=2)[:, 0]
+    assert abs(fixed.mean() - value) < 0.01 and abs(np.median(fixed) - value) < 0.01 and low < value < high
+    assert changing.mean() - value > 0.02  # the bias this removes
+    assert layer["defined"][0] < 2000 * 0.8  # resamples missing the rare episode are counted

@@ -22,6 +22,10 @@ from vlaprobe.configs.train import ProbeConfig, SplitConfig, TrainConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.probes import ProbeSet, load_store, synthetic_data
 from vlaprobe.probes import train as train_module
+from vlaprobe.probes.evaluate import column_groups
+from vlaprobe.probes.metrics import metrics_from_counts
+from vlaprobe.probes.split import filter_labels, rows_of, split_episodes
+from vlaprobe.probes.trainer import fit_probes
 from vlaprobe.reports import report as report_module
 
 FAST = dict(bootstrap=100, auprc_bootstrap=10)
@@ -138,12 +142,11 @@ def test_store_errors_are_one_line(tmp_path: Path) -> None:
         train_module.train_probes(TrainConfig(store=tmp_path / "s", probe=ProbeConfig(device="gpu")))
 
 
-@pytest.mark.libero
-def test_tiny_real_collection_through_train_and_report(tmp_path: Path) -> None:
-
-    # Two tasks x two short expert episodes (kept although they end before success): a few hundred steps.
+@pytest.fixture(scope="module")
+def real_store(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Two tasks x two short expert episodes (kept although they end before success): a few hundred steps."""
     cfg = CollectConfig(
-        out=tmp_path / "activations",
+        out=tmp_path_factory.mktemp("real") / "activations",
         tasks=(0, 1),
         episodes_per_task=2,
         max_tries_per_task=2,
@@ -153,8 +156,49 @@ def test_tiny_real_collection_through_train_and_report(tmp_path: Path) -> None:
         env=EnvConfig(image_size=128, max_steps=40),
     )
     collect.collect(cfg)
-    out = train_module.train_probes(TrainConfig(store=cfg.out, **FAST))
-    probes = ProbeSet.load(out, model_id=load_store(cfg.out, layers=(0,)).model_id)
+    return cfg.out
+
+
+@pytest.mark.libero
+def test_tiny_real_collection_through_train_and_report(real_store: Path) -> None:
+    out = train_module.train_probes(TrainConfig(store=real_store, out=real_store.parent / "probes", **FAST))
+    probes = ProbeSet.load(out, model_id=load_store(real_store, layers=(0,)).model_id)
     assert len(probes.layers) == 33
     page = report_module.write_report(ReportConfig(probes=out, dpi=50))
     assert "Dropped atoms" in page.read_text()
+
+
+def _balanced(pred: np.ndarray, truth: np.ndarray) -> float:
+    """Mean balanced accuracy over the atoms (columns) defined on these rows."""
+    counts = np.stack([(pred & truth), (pred & ~truth), (~pred & truth), (~pred & ~truth)], -1).sum(0)
+    return float(np.nanmean(metrics_from_counts(counts.astype(float))["balanced_accuracy"]))
+
+
+@pytest.mark.libero
+def test_probes_match_scikit_learn_on_a_real_store(real_store: Path) -> None:
+    """Our converged probes and scikit-learn's LogisticRegression (same standardisation, same C per layer)
+    score the same balanced accuracy, within 0.01, on every layer and head."""
+    linear_model = pytest.importorskip("sklearn.linear_model")
+    data = load_store(real_store)
+    (fold,) = split_episodes(data.episode_tasks, 0.2, 1, seed=0)
+    train, test = rows_of(data.episode, fold.train), rows_of(data.episode, fold.test)
+    compared = 0
+    for head in ("object", "action"):
+        kept = filter_labels(data.labels[head][train], data.atom_names[head], 0.01, 0.99).kept
+        if not len(kept):  # a short store may have no varying atom in a head
+            continue
+        compared += 1
+        y = data.labels[head][:, kept]
+        groups = column_groups(data, np.zeros(len(kept), np.int64), 0)
+        probes = fit_probes(data.hidden, y, train, ProbeConfig(device="cpu"), seed=0, groups=groups)
+        assert probes.mean is not None and probes.std is not None and probes.c is not None
+        ours = (probes.logits(data.hidden, test) > 0).numpy()
+        for i in range(len(data.layers)):
+            x = ((data.hidden[i].float() - probes.mean[i]) / probes.std[i]).numpy()
+            reference = np.zeros((len(test), len(kept)), bool)
+            for j in range(len(kept)):
+                model = linear_model.LogisticRegression(C=float(probes.c[i, j]), tol=1e-6, max_iter=5000)
+                reference[:, j] = model.fit(x[train], y[train, j]).predict(x[test]).astype(bool)
+            a, b = _balanced(ours[i], y[test]), _balanced(reference, y[test])
+            assert abs(a - b) <= 0.01, (head, data.layers[i], a, b)
+    assert compared >= 1

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from vlaprobe.configs import config_from_dict
-from vlaprobe.configs.train import SplitConfig, TrainConfig
+from vlaprobe.configs.train import ProbeConfig, SplitConfig, TrainConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.probes import ProbeSet, synthetic_data, train_on_data
 from vlaprobe.probes.data import ProbeData
@@ -60,7 +60,7 @@ def test_output_folder_is_complete(run: dict) -> None:
     cfg = config_from_dict(TrainConfig, json.loads((out / "config.json").read_text()))
     assert cfg == run["cfg"]  # the recorded config reproduces the run
     meta = run["meta"]
-    assert meta["model_id"] == "synthetic" and meta["config"]["probe"]["lr"] == run["cfg"].probe.lr
+    assert meta["model_id"] == "synthetic" and meta["config"]["probe"]["tol"] == run["cfg"].probe.tol
     assert set(meta["seeds"]) == {"split", "probe", "shuffle", "bootstrap"}
 
 
@@ -201,3 +201,57 @@ def test_realized_test_fraction_is_recorded_next_to_the_requested_one(run: dict)
     )
     split = json.loads((ev / "evaluation.json").read_text())["split"]
     assert split["test_fraction"] == 0.33 and split["realized_test_fraction"] == pytest.approx(6 / 15)
+
+
+def test_evaluation_records_how_every_probe_was_fit(run: dict) -> None:
+    ev = run["ev"]
+    layers = len(ev["layers"])
+    for h in ev["heads"].values():
+        fit = h["fit"]
+        shape = (layers, len(h["atoms"]))
+        for key in ("iterations", "loss", "grad_norm"):
+            assert np.array(fit[key], float).shape == shape, key
+        assert fit["at_cap"] == 0 and fit["probes"] == layers * len(h["atoms"])
+        assert np.nanmax(np.array(fit["grad_norm"], float)) <= fit["tol"]
+        assert fit["standardized"] and fit["cv_folds"] == 3
+        assert np.array(fit["cv_loss"], float).shape == (layers, len(fit["c_grid"]))
+        assert set(fit["c"]) <= set(fit["c_grid"])  # one C per layer, chosen from the grid
+
+
+def test_probes_stopped_at_the_cap_are_counted_and_warned_about(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    cfg = TrainConfig(shuffled_control=False, probe=ProbeConfig(max_iter=2), **FAST)
+    with caplog.at_level("WARNING", logger="vlaprobe.probes"):
+        out = train_on_data(small_data(), cfg, tmp_path)
+    fit = json.loads((out / "evaluation.json").read_text())["heads"]["object"]["fit"]
+    assert fit["at_cap"] == fit["probes"] > 0 and np.max(fit["iterations"]) == 2
+    assert "stopped before the tolerance" in caplog.text and "--probe.max-iter" in caplog.text
+
+
+@pytest.mark.parametrize("heads", [("object", "action"), ("action",)])
+@pytest.mark.parametrize("standardize", [True, False])
+def test_saved_and_loaded_probes_equal_the_trained_ones(
+    tmp_path: Path, heads: tuple[str, ...], standardize: bool
+) -> None:
+    data = small_data()
+    cfg = TrainConfig(
+        heads=heads, shuffled_control=False, bootstrap=20, auprc_bootstrap=0,
+        probe=ProbeConfig(standardize=standardize, c_grid=(0.1,)),
+    )  # fmt: skip
+    out = train_on_data(data, cfg, tmp_path / "p")
+    probes = ProbeSet.load(out)
+    assert probes.heads == list(heads) and probes.meta["standardized"] is standardize
+    assert all((f"{h}.mean" in probes.tensors) is standardize for h in heads)
+    ev = json.loads((out / "evaluation.json").read_text())
+    rows = np.flatnonzero(
+        np.isin(data.episode, [data.episode_keys.index(k) for k in ev["split"]["test_episodes"]])
+    )
+    for h in heads:
+        names = probes.atoms(h)
+        cols = [data.atom_names[h].index(a) for a in names]
+        i = ev["layers"].index(probes.best_layer(h))
+        live = np.array([[probes.predict(data.hidden[:, r], head=h)[a] for a in names] for r in rows])
+        accuracy = (live == data.labels[h][rows][:, cols]).mean()
+        offline = np.nanmean(np.array(ev["heads"][h]["probe"]["accuracy"]["atom"]["value"][i], float))
+        assert accuracy == pytest.approx(offline, abs=1e-4)  # readout applies the saved standardisation

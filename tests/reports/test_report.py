@@ -123,7 +123,14 @@ def test_csv_files_parse_and_match_the_json(report: dict) -> None:
     with open(report["dir"] / "curves_object.csv", newline="") as f:
         curve_rows = list(csv.DictReader(f))
     series = {r["series"] for r in curve_rows}
-    assert series == {"probe", "majority baseline", "shuffled-label control", "observer control"}
+    assert series == {
+        "probe",
+        "majority baseline",
+        "task baseline",
+        "task × time baseline",
+        "shuffled-label control",
+        "observer control",
+    }
     assert {r["metric"] for r in curve_rows} == {"accuracy", "balanced_accuracy", "f1", "auprc"}
 
 
@@ -187,7 +194,7 @@ def _provider(probes: Path) -> object:
 def test_page_shows_resamples_realized_split_and_control_spread(report: dict) -> None:
     text = report["page"].read_text()
     ev = report["ev"]
-    assert ev["format_version"] == 2 and ev["controls"]["shuffled_permutations"] == 5
+    assert ev["format_version"] == 3 and ev["controls"]["shuffled_permutations"] == 5
     assert "resamples defining balanced accuracy" in text and "5 permutations" in text
     split = ev["split"]
     assert split["realized_test_fraction"] == pytest.approx(3 / 12) and split["test_fraction"] == 0.2
@@ -195,3 +202,23 @@ def test_page_shows_resamples_realized_split_and_control_spread(report: dict) ->
     tables = json.loads((report["dir"] / "tables.json").read_text())
     row = tables["object"]["best_layer"]["rows"][-1]
     assert 0 < row["probe.balanced_accuracy.defined"] <= 100 and row["control.accuracy.sd"] >= 0
+
+
+def test_baselines_that_know_the_task_are_in_the_tables_and_the_headline(report: dict) -> None:
+    text = report["page"].read_text()
+    tables = json.loads((report["dir"] / "tables.json").read_text())
+    for head, t in tables.items():
+        h = report["ev"]["heads"][head]
+        row = t["best_layer"]["rows"][-1]  # (all atoms)
+        tt = h["task_time_baseline"]["balanced_accuracy"]["layer"]["value"][0]
+        assert row["task_time_baseline.balanced_accuracy"] == tt
+        best = h["best"]["index"]
+        sel = h["selectivity_task_time"]["balanced_accuracy"]["layer"]
+        assert row["selectivity_task_time.balanced_accuracy"] == sel["value"][best]
+        low, high = sel["low"][best], sel["high"][best]
+        verdict = "beats it" if low > 0 else "is below it" if high < 0 else "does not beat it"
+        assert (
+            t["headline"].startswith(f"{head}: best layer {h['best']['layer']}") and verdict in t["headline"]
+        )
+        assert t["headline"].replace("×", "&#215;") in text or t["headline"] in text
+    assert "selectivity over the task × time baseline" in text and "task baseline (bal.)" in text

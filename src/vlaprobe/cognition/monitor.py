@@ -46,7 +46,7 @@ class ViolationFigures:
 
 @dataclass(frozen=True)
 class GoalDetection:
-    """Goal reached from predictions vs from truth, over episodes."""
+    """Goal reached from predictions vs from truth, over episodes that succeed and episodes that fail."""
 
     precision: float | None
     """Of the episodes where the predictions reached the goal, the share where truth did too (None: none did)."""
@@ -54,6 +54,12 @@ class GoalDetection:
     """Of the episodes where truth reached the goal, the share where the predictions did too."""
     mean_delay_steps: float | None
     """Mean of (predicted step - true step) over episodes where both reached it; negative: early."""
+    false_alarms_per_100_steps: float | None = None
+    """``goal_reached`` events from the predictions at a step where truth's goal was not reached, per 100 steps."""
+    episodes: int = 0
+    """Episodes the figures rest on."""
+    failed_episodes: int = 0
+    """Of them, episodes in which truth never reached the goal (precision means little without any)."""
 
 
 @dataclass(frozen=True)
@@ -79,6 +85,8 @@ class EpisodeFigures:
     steps: int
     goal_step_truth: int | None
     goal_step_probes: int | None
+    false_alarms: int
+    """``goal_reached`` events of the predictions at steps where truth's goal was not reached."""
     violations_truth: int
     violations_probes: int
     subgoal_accuracy: float
@@ -109,7 +117,7 @@ class MonitorResult:
         }
 
     def to_json(self) -> dict[str, Any]:
-        return {"format": "vlaprobe-monitor", "format_version": 1, **asdict(self)}
+        return {"format": "vlaprobe-monitor", "format_version": 2, **asdict(self)}
 
 
 @dataclass
@@ -128,6 +136,9 @@ class _Run:
 
     def new_violations(self) -> Counter[str]:
         return Counter(v.rule for s in self.steps for v in s.violations if v.since == s.t)
+
+    def goal_events(self) -> list[int]:
+        return [e.t for s in self.steps for e in s.events if e.kind == "goal_reached"]
 
 
 def _run(cog: Cognition, obj: np.ndarray, act: np.ndarray) -> _Run:
@@ -167,6 +178,115 @@ def _ratio(a: float, b: float) -> float | None:
     return None if b == 0 else a / b
 
 
+@dataclass
+class _Pair:
+    """One episode run on truth and on the predictions, with the raw (not debounced) probed predictions."""
+
+    key: str
+    truth: _Run
+    probes: _Run
+    raw: np.ndarray  # (T, probed atoms) bool
+
+
+def _check_store(store: ActivationStore, readout: ProbeReadout, path: Path) -> None:
+    if store.model_id != readout.model_id:
+        raise VlaprobeError(
+            f"store {path} was observed by {store.model_id!r}, not the probes' model; pass its store"
+        )
+    for h in HEADS:
+        if list(readout.atoms[h]) != list(store.atom_names.get(h, [])):
+            raise VlaprobeError(
+                f"the probes' {h} atoms differ from store {path}'s; pass the store the probes were trained on"
+            )
+
+
+def _pair(
+    store: ActivationStore,
+    key: str,
+    label: str,
+    readout: ProbeReadout,
+    ccfg: Any,
+    cogs: dict,
+    mask: np.ndarray,
+) -> _Pair:
+    """Run one stored episode through the cognition on truth and on the probes' predictions."""
+    try:
+        goal = Goal(**store.episode(key).attrs["goal"])
+    except (KeyError, TypeError):
+        raise VlaprobeError(
+            f"episode {key} of store {label} records no task goal; collect it again with this vlaprobe"
+        ) from None
+    names = (goal.pick, goal.place)
+    if names not in cogs:
+        obj_atoms, act_atoms = store.atom_names["object"], store.atom_names["action"]
+        cogs[names] = (
+            Cognition(obj_atoms, act_atoms, goal, ccfg),
+            Cognition(obj_atoms, act_atoms, goal, ccfg, probed=readout.probed),
+        )
+    cog_truth, cog_probes = cogs[names]
+    truth = _run(cog_truth, store.labels("object", [key]), store.labels("action", [key]))
+    pred = readout.assign_steps({h: store.layer(readout.layers[h], [key]) for h in HEADS})
+    run = _run(cog_probes, pred.values["object"], pred.values["action"])
+    raw = np.concatenate([pred.values["object"], pred.values["action"]], axis=1)[:, mask]
+    return _Pair(key, truth, run, raw)
+
+
+def _episode_figures(p: _Pair) -> EpisodeFigures:
+    truth_at_goal = np.array([s.goal_reached for s in p.truth.steps])
+    false_alarms = sum(1 for t in p.probes.goal_events() if not truth_at_goal[t])
+    return EpisodeFigures(
+        p.key,
+        len(p.truth.steps),
+        p.truth.goal_step,
+        p.probes.goal_step,
+        false_alarms,
+        sum(p.truth.new_violations().values()),
+        sum(p.probes.new_violations().values()),
+        float((p.truth.active() == p.probes.active()).mean()),
+    )
+
+
+def goal_detection(episodes: list[EpisodeFigures]) -> GoalDetection:
+    """Goal detection over episodes: precision and recall of "the goal was reached", delay, false alarms."""
+    goals = [(e.goal_step_truth, e.goal_step_probes) for e in episodes]
+    both = [(a, b) for a, b in goals if a is not None and b is not None]
+    steps = sum(e.steps for e in episodes)
+    return GoalDetection(
+        precision=_ratio(len(both), sum(b is not None for _, b in goals)),
+        recall=_ratio(len(both), sum(a is not None for a, _ in goals)),
+        mean_delay_steps=float(np.mean([b - a for a, b in both])) if both else None,
+        false_alarms_per_100_steps=None
+        if not steps
+        else 100.0 * sum(e.false_alarms for e in episodes) / steps,
+        episodes=len(episodes),
+        failed_episodes=sum(a is None for a, _ in goals),
+    )
+
+
+def _figures(pairs: list[_Pair], mask: np.ndarray, rules: list[str]) -> tuple[ViolationFigures, ProbeFigures]:
+    """The truth run's and the probe run's figures over all episodes."""
+    steps = sum(len(p.truth.steps) for p in pairs)
+    per100 = 100.0 / max(steps, 1)
+    truth_v: Counter[str] = sum((p.truth.new_violations() for p in pairs), Counter())
+    probe_v: Counter[str] = sum((p.probes.new_violations() for p in pairs), Counter())
+    agree_sub = sum(int((p.truth.active() == p.probes.active()).sum()) for p in pairs)
+    agree = sum(int((p.truth.beliefs[:, mask] == p.probes.beliefs[:, mask]).sum()) for p in pairs)
+    raw_flips = sum(int((p.raw[1:] != p.raw[:-1]).sum()) for p in pairs)
+    belief_flips = sum(int((p.probes.beliefs[1:, mask] != p.probes.beliefs[:-1, mask]).sum()) for p in pairs)
+    flip_steps = max(steps - len(pairs), 1)
+    truth = ViolationFigures(sum(truth_v.values()) * per100, {r: truth_v.get(r, 0) for r in rules})
+    probes = ProbeFigures(
+        sum(probe_v.values()) * per100,
+        {r: probe_v.get(r, 0) for r in rules},
+        goal_detection=goal_detection([_episode_figures(p) for p in pairs]),
+        subgoal_accuracy=agree_sub / max(steps, 1),
+        belief_agreement=agree / max(steps * int(mask.sum()), 1),
+        flips_per_step=raw_flips / flip_steps,
+        flips_per_step_debounced=belief_flips / flip_steps,
+    )
+    return truth, probes
+
+
 def monitor(cfg: MonitorConfig) -> MonitorResult:
     """Run the cognition over the episodes on truth and on predictions; write ``monitor.json``."""
     from vlaprobe.collection.store import ActivationStore
@@ -177,88 +297,37 @@ def monitor(cfg: MonitorConfig) -> MonitorResult:
         check_output_folder(cfg.out)  # before the episodes are run, not after
     store = ActivationStore.open(cfg.store)
     readout = ProbeReadout.load(cfg.probes, model_id=store.model_id)
-    for h in HEADS:
-        if list(readout.atoms[h]) != list(store.atom_names.get(h, [])):
-            raise VlaprobeError(
-                f"the probes' {h} atoms differ from store {cfg.store}'s; pass the store the probes were trained on"
-            )
+    _check_store(store, readout, cfg.store)
     keys, held_out = _episodes(cfg, store, readout.meta)
     require_intact(cfg.store, read=True, keys=keys)  # a missing chunk would read as fill values
+    sources = [(store, keys, str(cfg.store), "")]
+    for path in cfg.extra_stores:
+        extra = ActivationStore.open(path)
+        _check_store(extra, readout, path)
+        require_intact(path, read=True, keys=[e.key for e in extra.episodes()])
+        sources.append((extra, [e.key for e in extra.episodes()], str(path), f"{Path(path).name}/"))
     ccfg = cfg.cognition()
     cogs: dict[tuple[str, str], tuple[Cognition, Cognition]] = {}
-    truth_v: Counter[str] = Counter()
-    probe_v: Counter[str] = Counter()
-    steps = agree_sub = 0
-    agree_beliefs = belief_pairs = raw_flips = belief_flips = flip_steps = 0
-    goals: list[tuple[int | None, int | None]] = []
-    per_episode: list[EpisodeFigures] = []
     mask = np.concatenate([readout.probed[h] for h in HEADS])
-    for key in keys:
-        try:
-            goal = Goal(**store.episode(key).attrs["goal"])
-        except (KeyError, TypeError):
-            raise VlaprobeError(
-                f"episode {key} of store {cfg.store} records no task goal; collect it again with this vlaprobe"
-            ) from None
-        names = (goal.pick, goal.place)
-        if names not in cogs:
-            cogs[names] = (
-                Cognition(store.atom_names["object"], store.atom_names["action"], goal, ccfg),
-                Cognition(
-                    store.atom_names["object"], store.atom_names["action"], goal, ccfg, probed=readout.probed
-                ),
-            )
-        cog_truth, cog_probes = cogs[names]
-        obj, act = store.labels("object", [key]), store.labels("action", [key])
-        truth = _run(cog_truth, obj, act)
-        rows = {h: store.layer(readout.layers[h], [key]) for h in HEADS}
-        pred = readout.assign_steps(rows)
-        run = _run(cog_probes, pred.values["object"], pred.values["action"])
-        n = len(obj)
-        steps += n
-        tv, pv = truth.new_violations(), run.new_violations()
-        truth_v += tv
-        probe_v += pv
-        same = truth.active() == run.active()
-        agree_sub += int(same.sum())
-        agree_beliefs += int((truth.beliefs[:, mask] == run.beliefs[:, mask]).sum())
-        belief_pairs += n * int(mask.sum())
-        raw = np.concatenate([pred.values["object"], pred.values["action"]], axis=1)[:, mask]
-        raw_flips += int((raw[1:] != raw[:-1]).sum())
-        belief_flips += int((run.beliefs[1:, mask] != run.beliefs[:-1, mask]).sum())
-        flip_steps += n - 1
-        goals.append((truth.goal_step, run.goal_step))
-        per_episode.append(
-            EpisodeFigures(
-                key, n, truth.goal_step, run.goal_step, sum(tv.values()), sum(pv.values()), float(same.mean())
-            )
-        )
-    rules = sorted(next(iter(cogs.values()))[0].rules.messages) if cogs else []
-    both = [(a, b) for a, b in goals if a is not None and b is not None]
-    detection = GoalDetection(
-        precision=_ratio(len(both), sum(b is not None for _, b in goals)),
-        recall=_ratio(len(both), sum(a is not None for a, _ in goals)),
-        mean_delay_steps=float(np.mean([b - a for a, b in both])) if both else None,
-    )
-    per100 = 100.0 / max(steps, 1)
+    pairs = []
+    for st, ks, label, prefix in sources:
+        for key in ks:
+            pair = _pair(st, key, label, readout, ccfg, cogs, mask)
+            pair.key = prefix + key
+            pairs.append(pair)
+    engine = next(iter(cogs.values()))[0].rules if cogs else None
+    rules = sorted(engine.messages) if engine is not None else []
+    truth, probes = _figures(pairs, mask, rules)
     result = MonitorResult(
-        episodes=len(keys),
-        steps=steps,
-        truth=ViolationFigures(sum(truth_v.values()) * per100, {r: truth_v.get(r, 0) for r in rules}),
-        probes=ProbeFigures(
-            sum(probe_v.values()) * per100,
-            {r: probe_v.get(r, 0) for r in rules},
-            goal_detection=detection,
-            subgoal_accuracy=agree_sub / max(steps, 1),
-            belief_agreement=agree_beliefs / max(belief_pairs, 1),
-            flips_per_step=raw_flips / max(flip_steps, 1),
-            flips_per_step_debounced=belief_flips / max(flip_steps, 1),
-        ),
+        episodes=len(pairs),
+        steps=sum(len(p.truth.steps) for p in pairs),
+        truth=truth,
+        probes=probes,
         held_out=held_out,
         layers=dict(readout.layers),
         debounce=ccfg.debounce,
-        rules=[str(p) for p in next(iter(cogs.values()))[0].rules.files] if cogs else [],
-        per_episode=per_episode,
+        rules=[str(p) for p in engine.files] if engine is not None else [],
+        per_episode=[_episode_figures(p) for p in pairs],
     )
     out = Path(cfg.out) if cfg.out is not None else Path(cfg.probes)
     write_atomic(out / MONITOR_FILE, json.dumps(result.to_json(), indent=1) + "\n")
@@ -304,7 +373,9 @@ def main(cfg: MonitorConfig) -> int:
         print(f"  {rule:24s} truth {t.violations[rule]:6d}  probes {p.violations[rule]:6d}")
     g = p.goal_detection
     print(
-        f"goal detection: precision {g.precision}, recall {g.recall}, mean delay {g.mean_delay_steps} steps"
+        f"goal detection over {g.episodes} episodes ({g.failed_episodes} failed): precision {g.precision}, "
+        f"recall {g.recall}, false alarms per 100 steps {g.false_alarms_per_100_steps}, "
+        f"mean delay {g.mean_delay_steps} steps"
     )
     print(
         f"subgoal accuracy {p.subgoal_accuracy:.3f}, belief agreement {p.belief_agreement:.3f}, flips per step "

@@ -5,7 +5,9 @@ From the task's goal ``On(X, Y)`` alone (nothing written per task), four subgoal
 1. ``should-move-towards(X)``: done once that directive has been believed and has ended, or X is grasped;
 2. ``grasped(X)``: done while X is grasped (or placed);
 3. ``should-move-towards(Y)``: done once that directive has ended while X is still grasped, or X is on Y;
-4. ``on(X,Y)``: the goal; done while it holds.
+4. ``on(X,Y)``: the goal; done while it holds after X was grasped and is no longer grasped (an ``on``
+   believed during the carry, or before any grasp, is not the goal: the rules report the first as
+   ``on_while_grasped``).
 
 X let go while ``should-move-towards(Y)`` still holds is still on its way (settling on Y, or falling).
 The *level* is the number of subgoals done; they are done in order, so a step may complete several. When the
@@ -88,6 +90,7 @@ class SubgoalTracker:
         self.level = 0
         self._regressed = [False] * 4
         self._seen_towards = [False, False]  # directive believed since its subgoal became the next to do
+        self._seen_grasp = False  # X grasped since the start (or since a regression below subgoal 2)
         self._last_progress = 0
         self._below = 0  # consecutive steps the beliefs have supported less than the level
         self._stalled = False
@@ -96,7 +99,9 @@ class SubgoalTracker:
     def _support(self, b: np.ndarray) -> int:
         """Highest level the current beliefs (and the directives seen) support."""
         towards_x, grasped, towards_y, on = (bool(b[i]) for i in self._i)
-        if on:
+        if grasped:
+            self._seen_grasp = True
+        elif on and self._seen_grasp:
             return 4
         if grasped:
             if self.level >= 2 and towards_y:
@@ -136,6 +141,8 @@ class SubgoalTracker:
                 )
             if new == 0:
                 self._seen_towards[0] = False
+            if new < 2:
+                self._seen_grasp = False
             self._last_progress, self._stalled = t, False
         elif new < 4 and not self._stalled and t - self._last_progress >= self.stall_steps:
             self._stalled = True

@@ -126,13 +126,14 @@ def check_train(cfg: TrainConfig, prefix: str = "") -> None:
     if cfg.split.folds == 1:
         _between(cfg.split.test_fraction, 0, 1, f("split.test_fraction"))
     p = cfg.probe
-    _at_least(p.batch_size, 1, f("probe.batch_size"))
-    _at_least(p.epochs, 1, f("probe.epochs"))
-    _at_least(p.min_updates, 0, f("probe.min_updates"))
-    if not (math.isfinite(p.lr) and p.lr > 0):
-        raise VlaprobeError(f"{f('probe.lr')} must be a positive finite number, got {p.lr}")
-    if not (math.isfinite(p.weight_decay) and p.weight_decay >= 0):
-        raise VlaprobeError(f"{f('probe.weight_decay')} must be 0 or a positive number, got {p.weight_decay}")
+    if not p.c_grid or not all(math.isfinite(c) and c > 0 for c in p.c_grid):
+        raise VlaprobeError(f"{f('probe.c_grid')} needs positive finite values, got {list(p.c_grid)}")
+    if len(p.c_grid) > 1:
+        _at_least(p.cv_folds, 2, f("probe.cv_folds"), " (or give one value to --probe.c-grid)")
+    if not (math.isfinite(p.tol) and p.tol > 0):
+        raise VlaprobeError(f"{f('probe.tol')} must be a positive finite number, got {p.tol}")
+    _at_least(p.max_iter, 1, f("probe.max_iter"))
+    _at_least(p.history, 1, f("probe.history"))
     _between(p.threshold, 0, 1, f("probe.threshold"))
     check_device(p.device, f("probe.device"))
     _at_least(cfg.bootstrap, 0, f("bootstrap"))

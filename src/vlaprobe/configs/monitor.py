@@ -46,6 +46,9 @@ class MonitorConfig:
     """Print the figures as one JSON object on stdout."""
     all_episodes: bool = False
     """Every stored episode instead of the probes' held-out test episodes (checks the rules on truth)."""
+    extra_stores: tuple[Path, ...] = ()
+    """More stores observed by the same model whose episodes (all of them, never trained on) join the figures:
+    e.g. policy-driven episodes that fail, so goal detection is measured on failures too."""
     debounce: int = DEFAULT_DEBOUNCE
     """Steps a belief change must hold before it counts (the same for truth and predictions)."""
     recent_steps: int = 10

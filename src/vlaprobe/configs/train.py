@@ -33,29 +33,29 @@ class SplitConfig:
 
 @dataclass
 class ProbeConfig:
-    """Optimisation of the probes: one linear layer per hidden state and head, sigmoid + BCE, Adam."""
+    """The probes: per hidden state and head, one L2-regularised logistic regression per atom, fit to convergence."""
 
-    epochs: int = 4
-    """Passes over the training steps. At the paper's scale (6,400 training steps) 4 epochs of small batches
-    beat the published recipe's 20 epochs of batch 4096 in accuracy at a fifth of its matmul work
-    (bench/probe_training.py)."""
-    min_updates: int = 200
-    """At least this many Adam updates: smaller datasets get more epochs (they are cheap)."""
-    batch_size: int = 128
-    """Steps per Adam update. A linear probe needs many updates more than many passes over the data."""
-    lr: float = 3e-3
-    """Peak Adam learning rate, decayed to zero with a cosine over the run (the recipe: 1e-3, constant)."""
-    weight_decay: float = 0.0
-    """Decoupled (AdamW) weight decay; 0 means plain Adam."""
+    standardize: bool = True
+    """Scale each feature to zero mean and unit variance with training-split statistics (saved with the probes
+    and applied at readout). Without it the layers' very different activation scales decide the fit."""
+    c_grid: tuple[float, ...] = (0.01, 0.1, 1.0)
+    """Inverse L2 strengths C (scikit-learn's convention: penalty ||w||^2 / 2 against C x summed log-loss) from
+    which episode-grouped cross-validation on the training split picks one per layer and head (lowest mean
+    held-out log-loss over the head's atoms; ties: the stronger penalty). One value: no cross-validation."""
+    cv_folds: int = 3
+    """Folds of that cross-validation, by whole training episodes, stratified by task."""
+    tol: float = 1e-4
+    """A probe is converged when the largest absolute entry of its objective's gradient is at most this."""
+    max_iter: int = 500
+    """L-BFGS iteration cap per probe; probes stopped there are counted and warned about."""
+    history: int = 10
+    """L-BFGS memory (correction pairs kept per probe)."""
+    memory_mb: float = 1024
+    """Working memory budget of the solver; layers are processed in chunks that fit it."""
     balance: bool = False
     """Weight each atom's positives by its negative/positive ratio in the training split (off in the paper)."""
-    standardize: bool = False
-    """Scale each feature to zero mean and unit variance with training-split statistics (off in the paper)."""
     threshold: float = 0.5
     """Probability above which an atom is predicted true."""
-    compute_dtype: Literal["float32", "bfloat16"] = "float32"
-    """Matmul precision. bfloat16 is faster where the hardware has it (recent x86, GPUs); weights and the
-    optimiser state stay float32 either way."""
     device: str = "auto"
     """Torch device: "auto" picks cuda when available, else cpu."""
 

@@ -14,14 +14,17 @@ import numpy as np
 import torch
 
 from vlaprobe.configs.train import TrainConfig
+from vlaprobe.probes.baselines import BASELINES, predict_baselines
 from vlaprobe.probes.data import ACTION_PREDICATES, OBJECT_PREDICATES, ProbeData, predicate
 from vlaprobe.probes.metrics import COUNT_METRICS, METRICS, atom_metrics, summarize
+from vlaprobe.probes.regularization import ColumnGroups
 from vlaprobe.probes.results import (
     BestLayer,
     DroppedAtom,
     HeadResult,
     Level,
     MetricSummary,
+    ProbeFit,
     Spread,
     nested,
     number,
@@ -40,8 +43,9 @@ class CrossFit:
     """(layers, rows, atoms) probe logits."""
     control_logits: torch.Tensor | None
     """(permutations, layers, rows, atoms) logits of the probes trained on shuffled labels, or None."""
-    majority: np.ndarray
-    """bool (rows, atoms): the majority class of each row's training split."""
+    baselines: dict[str, np.ndarray]
+    """Baseline name (:data:`~vlaprobe.probes.baselines.BASELINES`) -> bool (rows, atoms): its prediction,
+    fit on each row's training split."""
     groups: np.ndarray
     """(rows,) test-episode index of each row, for the bootstrap."""
     episodes: np.ndarray
@@ -50,6 +54,8 @@ class CrossFit:
     """The last fold's probes (the real columns only)."""
     train_frequency: np.ndarray
     """(atoms,) share of true rows in the training splits (mean over folds)."""
+    column_head: np.ndarray
+    """(atoms,) head index of each target column (the column group sharing an L2 strength)."""
 
     @property
     def num_groups(self) -> int:
@@ -63,21 +69,24 @@ def cross_fit(
     cfg: TrainConfig,
     seeds: dict[str, int],
     permutations: int,
+    column_head: np.ndarray,
 ) -> CrossFit:
     """Train on each fold's training rows, score its test rows; pool the scores over folds.
 
     Each of ``permutations`` shuffled-label controls permutes the training labels across steps (whole label
     rows, so the atoms' co-occurrence is kept) and adds a block of columns to the same matmuls: it costs
-    only wider weights.
+    only wider weights. ``column_head`` (atoms,) says which head each target column belongs to: a head's
+    atoms (and their shuffled copies) share one L2 strength per layer.
     """
     rng = np.random.default_rng(seeds["shuffle"])
     k = targets.shape[1]
     eval_rows = np.sort(np.concatenate([te for _, te in fold_rows]))
     logits = torch.empty((len(data.layers), len(eval_rows), k))
     control = torch.empty((permutations, *logits.shape)) if permutations else None
-    majority = np.empty((len(eval_rows), k), bool)
+    baselines = {name: np.empty((len(eval_rows), k), bool) for name in BASELINES}
     train_frequency = np.zeros(k)
     probes: LinearProbes | None = None
+    groups = column_groups(data, column_head, permutations)
     for i, (train_rows, test_rows) in enumerate(fold_rows):
         blocks = [targets]
         for _ in range(permutations):
@@ -85,7 +94,7 @@ def cross_fit(
             shuffled[train_rows] = targets[rng.permutation(train_rows)]
             blocks.append(shuffled)
         fitted = fit_probes(
-            data.hidden, np.concatenate(blocks, axis=1), train_rows, cfg.probe, seeds["probe"] + i
+            data.hidden, np.concatenate(blocks, axis=1), train_rows, cfg.probe, seeds["probe"] + i, groups
         )
         scores = fitted.logits(data.hidden, test_rows)
         at = np.searchsorted(eval_rows, test_rows)
@@ -93,13 +102,60 @@ def cross_fit(
         if control is not None:
             for p in range(permutations):
                 control[p][:, at] = scores[:, :, k * (p + 1) : k * (p + 2)]
-        frequency = targets[train_rows].mean(0)
-        majority[at] = frequency >= 0.5
-        train_frequency += frequency / len(fold_rows)
-        probes = LinearProbes(fitted.weight[:, :, :k], fitted.bias[:, :k], fitted.mean, fitted.std)
+        predicted = predict_baselines(targets, data.episode, data.episode_tasks, train_rows, test_rows)
+        for name in BASELINES:
+            baselines[name][at] = predicted[name]
+        train_frequency += targets[train_rows].mean(0) / len(fold_rows)
+        probes = fitted.columns(slice(0, k))
     assert probes is not None
     episodes, groups = np.unique(data.episode[eval_rows], return_inverse=True)
-    return CrossFit(eval_rows, logits, control, majority, groups, episodes, probes, train_frequency)
+    return CrossFit(
+        eval_rows,
+        logits,
+        control,
+        baselines,
+        groups,
+        episodes,
+        probes,
+        train_frequency,
+        np.asarray(column_head),
+    )
+
+
+def column_groups(data: ProbeData, column_head: np.ndarray, permutations: int) -> ColumnGroups:
+    """Columns of the real atoms and of each shuffled copy, grouped by head; the real ones are scored."""
+    k = len(column_head)
+    return ColumnGroups(
+        episode=data.episode,
+        episode_tasks=data.episode_tasks,
+        group=np.tile(np.asarray(column_head), 1 + permutations),
+        scored=np.arange(k * (1 + permutations)) < k,
+    )
+
+
+def probe_fit(fitted: CrossFit, cols: np.ndarray, cfg: TrainConfig) -> ProbeFit:
+    """How the probes of one head (columns ``cols``) were fit, for ``evaluation.json``."""
+    probes = fitted.probes
+    conv = probes.convergence
+    assert conv is not None and probes.c is not None
+    conv = conv.columns(cols)
+    cv_loss = None
+    if probes.cv is not None and len(cols):
+        cv_loss = nested(probes.cv.of_group(int(fitted.column_head[cols[0]]))[0])
+    return ProbeFit(
+        tol=conv.tol,
+        max_iter=conv.max_iter,
+        standardized=probes.mean is not None,
+        c=nested(probes.c[:, cols[0]] if len(cols) else np.zeros(0)),
+        c_grid=[float(c) for c in cfg.probe.c_grid],
+        cv_folds=0 if probes.cv is None else probes.cv.folds,
+        cv_loss=cv_loss,
+        iterations=nested(conv.iterations),
+        loss=nested(conv.loss),
+        grad_norm=nested(conv.grad_norm),
+        at_cap=int((~conv.converged).sum()),
+        probes=int(conv.converged.size),
+    )
 
 
 def predicate_order(atoms: list[str]) -> list[str]:
@@ -175,10 +231,14 @@ def evaluate_head(
 
     point, res = run(fitted.logits[:, :, cols], cfg.auprc_bootstrap)
     probe = {m: _summary(point[m], res[m], groups) for m in METRICS}
-    baseline_logits = (
-        torch.where(torch.as_tensor(fitted.majority[:, cols]), 1.0, -1.0)[None] + threshold_logit
-    )
-    b_point, b_res = run(baseline_logits, 0)
+
+    def baseline(name: str) -> tuple[dict, dict]:
+        pred = torch.as_tensor(fitted.baselines[name][:, cols])
+        return run(torch.where(pred, 1.0, -1.0)[None] + threshold_logit, 0)
+
+    base = {name: baseline(name) for name in BASELINES}
+    b_point, b_res = base["majority"]
+    tt_point, tt_res = base["task_time"]
     result = HeadResult(
         atoms=atoms,
         predicates=preds,
@@ -193,6 +253,11 @@ def evaluate_head(
         best=BestLayer(0, 0, "", None, None, None, ""),
         probe=probe,
         baseline={m: _summary(b_point[m], b_res[m], groups) for m in METRICS},
+        task_baseline={m: _summary(*[r[m] for r in base["task"]], groups) for m in METRICS},
+        task_time_baseline={m: _summary(tt_point[m], tt_res[m], groups) for m in METRICS},
+        selectivity_task_time={
+            m: _summary(point[m] - tt_point[m], res[m] - tt_res[m], groups) for m in COUNT_METRICS
+        },
     )
     if fitted.control_logits is not None:
         runs = [run(c[:, :, cols], 0) for c in fitted.control_logits]
@@ -209,6 +274,7 @@ def evaluate_head(
         result.selectivity = {
             m: _summary(point[m] - c_point[m], res[m] - c_res[m], groups) for m in COUNT_METRICS
         }
+    result.fit = probe_fit(fitted, cols, cfg)
     s = summarize(point[cfg.select_metric], res[cfg.select_metric], groups)["layer"]
     result.best = best_layer(s["value"], s["low"], s["high"], data.layers, cfg.select_metric)
     return result

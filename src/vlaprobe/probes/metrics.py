@@ -174,6 +174,19 @@ def _complete(point: np.ndarray, resampled: np.ndarray, axis_atoms: list[np.ndar
     return np.stack([(~missing[:, :, g].any(2)).sum(0) for g in axis_atoms], 1)
 
 
+def fixed_set(point: np.ndarray, resampled: np.ndarray) -> np.ndarray:
+    """Resampled per-atom values for averages over a fixed set of atoms: those defined at the point.
+
+    An atom undefined at the point (on the full test set) is left out of every resample; an atom defined at
+    the point but not in a resample (the resample drew none of its positive, or negative, episodes) enters
+    that resample's average with its full-test-set value. Leaving it out instead would average a different
+    set of atoms in each resample (mostly without the rare ones), which moved the interval away from the point.
+    """
+    defined_at_point = ~np.isnan(point)[None]
+    filled = np.where(np.isnan(resampled) & defined_at_point, point[None], resampled)
+    return np.where(defined_at_point, filled, np.nan)
+
+
 def summarize(
     point: np.ndarray, resampled: np.ndarray, groups: list[np.ndarray]
 ) -> dict[str, dict[str, np.ndarray]]:
@@ -181,16 +194,15 @@ def summarize(
 
     ``point`` is (layers, atoms), ``resampled`` (resamples, layers, atoms). Each level gets its value and a
     95% percentile interval computed from the same resamples (so intervals of averages are correct,
-    not averages of intervals); ``count`` says how many atoms were defined in each average and ``defined`` in
+    not averages of intervals; averages over the fixed set of :func:`fixed_set`); ``count`` says how many atoms were defined in each average and ``defined`` in
     how many resamples the figure was defined over all of its atoms (an atom: in which it was defined).
     """
     out: dict[str, dict[str, np.ndarray]] = {}
     low, high = _interval(resampled)
+    fixed = fixed_set(point, resampled)
     out["atom"] = {"value": point, "low": low, "high": high, "defined": (~np.isnan(resampled)).sum(0)}
     pred_point = np.stack([_nanmean(point[:, g], 1) for g in groups], 1)
-    pred_res = (
-        np.stack([_nanmean(resampled[:, :, g], 2) for g in groups], 2) if groups else resampled[..., :0]
-    )
+    pred_res = np.stack([_nanmean(fixed[:, :, g], 2) for g in groups], 2) if groups else resampled[..., :0]
     low, high = _interval(pred_res)
     counts = np.stack([(~np.isnan(point[:, g])).sum(1) for g in groups], 1)
     out["predicate"] = {
@@ -200,7 +212,7 @@ def summarize(
         "count": counts,
         "defined": _complete(point, resampled, groups),
     }
-    layer_res = _nanmean(resampled, 2)
+    layer_res = _nanmean(fixed, 2)
     low, high = _interval(layer_res)
     out["layer"] = {
         "value": _nanmean(point, 1),

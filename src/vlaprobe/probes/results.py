@@ -6,7 +6,10 @@ nested lists with ``None`` for undefined (NaN) values; :func:`arr` turns them ba
 
 Format version 2 (version 1 had none of these): every figure records in how many bootstrap resamples it was
 defined (``defined``); the shuffled-label control is the mean of several permutations, with their spread
-(``control_spread``); the split records the realized test fraction next to the requested one.
+(``control_spread``); the split records the realized test fraction next to the requested one. Version 3:
+the task and task x time baselines (``task_baseline``, ``task_time_baseline``) and the selectivity over the
+latter (``selectivity_task_time``); how each probe was fit (``fit``: C per layer, cross-validation losses,
+iterations, final loss and gradient norm per probe); averages keep a fixed set of atoms in every resample.
 """
 
 from __future__ import annotations
@@ -24,10 +27,19 @@ from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import write_atomic
 
 FORMAT = "vlaprobe-evaluation"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 EVALUATION_FILE = "evaluation.json"
 CONFIG_FILE = "config.json"
-PARTS = ("probe", "baseline", "control", "selectivity", "observer")
+PARTS = (
+    "probe",
+    "baseline",
+    "task_baseline",
+    "task_time_baseline",
+    "control",
+    "selectivity",
+    "selectivity_task_time",
+    "observer",
+)
 """The metric summaries a head may have, in display order."""
 
 Nested = list[Any]
@@ -94,6 +106,33 @@ class DroppedAtom:
 
 
 @dataclass
+class ProbeFit:
+    """How the head's probes were fit: regularisation chosen and where the solver stopped, per probe."""
+
+    tol: float
+    """Stopping tolerance on the largest absolute gradient entry."""
+    max_iter: int
+    standardized: bool
+    c: Nested
+    """(layers,) the inverse L2 strength C used per layer."""
+    c_grid: list[float]
+    cv_folds: int
+    """Folds of the cross-validation over training episodes that chose C (0: C was not cross-validated)."""
+    cv_loss: Nested | None
+    """(layers, grid) mean held-out log-loss of each C, or None."""
+    iterations: Nested
+    """(layers, atoms) L-BFGS iterations."""
+    loss: Nested
+    """(layers, atoms) final objective."""
+    grad_norm: Nested
+    """(layers, atoms) final largest absolute gradient entry."""
+    at_cap: int
+    """Probes that stopped without reaching ``tol`` (at ``max_iter`` or in a failed line search)."""
+    probes: int
+    """Probes fit (layers x atoms)."""
+
+
+@dataclass
 class HeadResult:
     """Everything measured for one label head ("object" or "action")."""
 
@@ -112,6 +151,14 @@ class HeadResult:
     """Metric name -> summary of the probes."""
     baseline: dict[str, MetricSummary]
     """The majority-class baseline (one row: it does not depend on the layer)."""
+    task_baseline: dict[str, MetricSummary] | None = None
+    """Task -> per-atom training majority (one row)."""
+    task_time_baseline: dict[str, MetricSummary] | None = None
+    """(Task, decile of normalised episode time) -> per-atom training majority (one row)."""
+    selectivity_task_time: dict[str, MetricSummary] | None = None
+    """Probe minus the task x time baseline, per resample (paired)."""
+    fit: ProbeFit | None = None
+    """How the probes evaluated here were fit."""
     control: dict[str, MetricSummary] | None = None
     """The shuffled-label control: mean over the permutations (point and resamples)."""
     control_spread: dict[str, Spread] | None = None

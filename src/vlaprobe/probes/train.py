@@ -17,38 +17,34 @@ import logging
 import math
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
+import torch
 
 from vlaprobe.collection.store import read_meta
 from vlaprobe.configs.checks import check_train
 from vlaprobe.configs.train import TrainConfig
 from vlaprobe.devices import resolve_device
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import versions, write_atomic
+from vlaprobe.files import write_atomic
 from vlaprobe.probes.data import ProbeData, load_store
-from vlaprobe.probes.evaluate import CrossFit, cross_fit, evaluate_head
-from vlaprobe.probes.metrics import METRICS, bootstrap_weights
+from vlaprobe.probes.evaluate import CrossFit, column_groups, cross_fit, evaluate_head
+from vlaprobe.probes.metrics import bootstrap_weights
 from vlaprobe.probes.outfolder import check_free_space, check_probe_folder, locked, replace_folder
-from vlaprobe.probes.probeset import FORMAT, FORMAT_VERSION, ProbeSet
+from vlaprobe.probes.probeset import ProbeSet
+from vlaprobe.probes.record import config_dict, evaluation_record, probe_meta
 from vlaprobe.probes.results import (
     CONFIG_FILE,
-    Bootstrap,
-    Controls,
-    Dataset,
     DroppedAtom,
-    Episodes,
     Evaluation,
     HeadResult,
     ObserverInfo,
     SkippedHead,
-    Split,
     read_evaluation,
     write_evaluation,
 )
 from vlaprobe.probes.split import Fold, LabelFilter, check_no_leak, filter_labels, make_folds, rows_of
-from vlaprobe.probes.trainer import fit_probes
+from vlaprobe.probes.trainer import LinearProbes, fit_probes
 
 log = logging.getLogger("vlaprobe.probes")
 
@@ -90,7 +86,6 @@ def train_on_data(
     data: ProbeData, cfg: TrainConfig, out: str | Path, observer: ProbeData | None = None
 ) -> Path:
     """Run the whole experiment on in-memory data and write the output folder; return it."""
-    out = Path(out)
     started = time.perf_counter()
     seeds = {"split": cfg.seed, "probe": cfg.seed + 1, "shuffle": cfg.seed + 2, "bootstrap": cfg.seed + 3}
     heads = _check_heads(data, cfg)
@@ -99,50 +94,13 @@ def train_on_data(
             f"--shuffled-permutations must be at least 1 with the shuffled control, got "
             f"{cfg.shuffled_permutations} (or pass --no-shuffled-control)"
         )
-
-    # 1. Split by episode; the rows handed to the trainer are checked for leaks.
-    folds = _split(data, cfg, seeds["split"])
-    fold_rows = [(rows_of(data.episode, f.train), rows_of(data.episode, f.test)) for f in folds]
-    for train_rows, test_rows in fold_rows:
-        check_no_leak(data.episode, train_rows, test_rows)
-
-    # 2. Keep atoms that vary in every training split.
-    filters = {
-        h: filter_labels(
-            [data.labels[h][tr] for tr, _ in fold_rows],
-            data.atom_names[h],
-            cfg.min_frequency,
-            cfg.max_frequency,
-        )
-        for h in heads
-    }
-    skipped_heads = {
-        h: f"all {len(filters[h].dropped)} atoms dropped" for h in heads if not len(filters[h].kept)
-    }
-    heads = [h for h in heads if h not in skipped_heads]
-    if not heads:
-        raise VlaprobeError(
-            f"every atom is true in < {cfg.min_frequency:.0%} or > {cfg.max_frequency:.0%} of the "
-            "training steps; collect more varied episodes or change --min-frequency/--max-frequency"
-        )
+    folds, fold_rows = _split_rows(data, cfg, seeds["split"])  # 1. by episode, leak-checked
+    heads, filters, skipped_heads = _filter_atoms(data, cfg, heads, fold_rows)  # 2. atoms that vary
     columns = _columns(heads, filters)
     targets = np.concatenate([data.labels[h][:, filters[h].kept] for h in heads], axis=1)
-
-    # 3. Train (probes and shuffled-label control together) and score the held-out steps.
-    log.info(
-        "training %d layers x %d atoms on %d steps (%d fold(s))",
-        len(data.layers),
-        targets.shape[1],
-        data.num_steps,
-        len(folds),
-    )
-    permutations = cfg.shuffled_permutations if cfg.shuffled_control else 0
-    fitted = cross_fit(data, targets, fold_rows, cfg, seeds, permutations)
-    probes = fitted.probes
-    if len(folds) > 1:  # cross-validated figures; the saved probes learn from every episode
-        probes = fit_probes(data.hidden, targets, np.arange(data.num_steps), cfg.probe, seeds["probe"])
+    column_head = np.concatenate([np.full(len(filters[h].kept), i) for i, h in enumerate(heads)])
+    fitted, probes = _fit(data, cfg, seeds, targets, fold_rows, column_head)  # 3. probes and controls
     trained = time.perf_counter()
-
     # 4. Evaluate everything on the same bootstrap resamples of test episodes.
     log.info("evaluating with %d bootstrap resamples of %d test episodes", cfg.bootstrap, fitted.num_groups)
     weights = bootstrap_weights(
@@ -153,24 +111,15 @@ def train_on_data(
         h: evaluate_head(h, data, filters[h], columns[h], fitted, targets, weights, threshold_logit, cfg)
         for h in heads
     }
-
     observer_info = None
     if observer is not None:
         log.info("observer control: %s", observer.model_id)
         observer_info = _observer(
             observer, data, heads, filters, folds, cfg, seeds, weights, threshold_logit, head_results
         )
-
     # 5. Save: probes (JSON last: it marks a complete folder), evaluation, config.
-    meta = _probe_meta(data, cfg, seeds, heads, filters, head_results, len(folds) > 1)
-    tensors = {}
-    for h in heads:
-        cols = columns[h]
-        tensors[f"{h}.weight"] = probes.weight[:, :, cols].contiguous()
-        tensors[f"{h}.bias"] = probes.bias[:, cols].contiguous()
-        if probes.mean is not None and probes.std is not None:
-            tensors[f"{h}.mean"], tensors[f"{h}.std"] = probes.mean, probes.std
-    evaluation = _evaluation(data, cfg, seeds, folds, fold_rows, fitted, head_results, observer_info)
+    meta = probe_meta(data, cfg, seeds, heads, filters, head_results, len(folds) > 1)
+    evaluation = evaluation_record(data, cfg, seeds, folds, fold_rows, fitted, head_results, observer_info)
     evaluation.skipped_heads = {
         h: SkippedHead(reason=r, dropped=[DroppedAtom(**d) for d in filters[h].dropped])
         for h, r in skipped_heads.items()
@@ -179,16 +128,116 @@ def train_on_data(
         "train": round(trained - started, 2),
         "total": round(time.perf_counter() - started, 2),
     }
-
-    def write(folder: Path) -> None:
-        write_atomic(folder / CONFIG_FILE, json.dumps(_config_dict(cfg), indent=1) + "\n")
-        write_evaluation(folder, evaluation)
-        ProbeSet(meta, {k: v.cpu() for k, v in tensors.items()}).save(folder)
-
-    return replace_folder(out, write)  # one unit: a kill leaves the old folder or the new one, never a mix
+    return _save(Path(out), cfg, evaluation, ProbeSet(meta, _tensors(probes, heads, columns)))
 
 
 # -- steps ----------------------------------------------------------------------------------------------
+
+
+def _split_rows(
+    data: ProbeData, cfg: TrainConfig, seed: int
+) -> tuple[list[Fold], list[tuple[np.ndarray, np.ndarray]]]:
+    """The folds and their (train, test) rows; the rows handed to the trainer are checked for leaks."""
+    folds = _split(data, cfg, seed)
+    fold_rows = [(rows_of(data.episode, f.train), rows_of(data.episode, f.test)) for f in folds]
+    for train_rows, test_rows in fold_rows:
+        check_no_leak(data.episode, train_rows, test_rows)
+    return folds, fold_rows
+
+
+def _filter_atoms(
+    data: ProbeData, cfg: TrainConfig, heads: list[str], fold_rows: list[tuple[np.ndarray, np.ndarray]]
+) -> tuple[list[str], dict[str, LabelFilter], dict[str, str]]:
+    """Keep the atoms that vary in every training split; heads left without atoms are skipped."""
+    filters = {
+        h: filter_labels(
+            [data.labels[h][tr] for tr, _ in fold_rows],
+            data.atom_names[h],
+            cfg.min_frequency,
+            cfg.max_frequency,
+        )
+        for h in heads
+    }
+    skipped = {h: f"all {len(filters[h].dropped)} atoms dropped" for h in heads if not len(filters[h].kept)}
+    heads = [h for h in heads if h not in skipped]
+    if not heads:
+        raise VlaprobeError(
+            f"every atom is true in < {cfg.min_frequency:.0%} or > {cfg.max_frequency:.0%} of the "
+            "training steps; collect more varied episodes or change --min-frequency/--max-frequency"
+        )
+    return heads, filters, skipped
+
+
+def _fit(
+    data: ProbeData,
+    cfg: TrainConfig,
+    seeds: dict[str, int],
+    targets: np.ndarray,
+    fold_rows: list[tuple[np.ndarray, np.ndarray]],
+    column_head: np.ndarray,
+) -> tuple[CrossFit, LinearProbes]:
+    """Train (probes and shuffled-label control together), score the held-out steps; the probes to save."""
+    log.info(
+        "training %d layers x %d atoms on %d steps (%d fold(s))",
+        len(data.layers),
+        targets.shape[1],
+        data.num_steps,
+        len(fold_rows),
+    )
+    permutations = cfg.shuffled_permutations if cfg.shuffled_control else 0
+    fitted = cross_fit(data, targets, fold_rows, cfg, seeds, permutations, column_head)
+    probes = fitted.probes
+    if len(fold_rows) > 1:  # cross-validated figures; the saved probes learn from every episode
+        groups = column_groups(data, column_head, 0)
+        probes = fit_probes(
+            data.hidden, targets, np.arange(data.num_steps), cfg.probe, seeds["probe"], groups
+        )
+    for p in {id(fitted.probes): fitted.probes, id(probes): probes}.values():
+        _warn_at_cap(p)
+    return fitted, probes
+
+
+def _warn_at_cap(probes: LinearProbes) -> None:
+    conv = probes.convergence
+    if conv is None or conv.converged.all():
+        return
+    stopped = ~conv.converged
+    log.warning(
+        "%d of %d probes stopped before the tolerance %g (at --probe.max-iter %d or in a failed line search; "
+        "largest gradient %.2g); raise --probe.max-iter",
+        int(stopped.sum()),
+        stopped.size,
+        conv.tol,
+        conv.max_iter,
+        float(conv.grad_norm[stopped].max()),
+    )
+
+
+def _tensors(
+    probes: LinearProbes, heads: list[str], columns: dict[str, np.ndarray]
+) -> dict[str, torch.Tensor]:
+    """The saved tensors: per head its weight columns and, when standardised, its own copy of the statistics
+    (safetensors refuses two names for one memory)."""
+    tensors = {}
+    for h in heads:
+        cols = columns[h]
+        tensors[f"{h}.weight"] = probes.weight[:, :, cols].contiguous()
+        tensors[f"{h}.bias"] = probes.bias[:, cols].contiguous()
+        if probes.mean is not None and probes.std is not None:
+            tensors[f"{h}.mean"], tensors[f"{h}.std"] = probes.mean.clone(), probes.std.clone()
+    return tensors
+
+
+def _save(out: Path, cfg: TrainConfig, evaluation: Evaluation, probes: ProbeSet) -> Path:
+    """Write the folder as one unit: a kill leaves the old folder or the new one, never a mix."""
+
+    def write(folder: Path) -> None:
+        write_atomic(folder / CONFIG_FILE, json.dumps(config_dict(cfg), indent=1) + "\n")
+        write_evaluation(folder, evaluation)
+        probes.tensors = {k: v.cpu() for k, v in probes.tensors.items()}
+        probes.save(folder)
+
+    return replace_folder(out, write)
 
 
 def _split(data: ProbeData, cfg: TrainConfig, seed: int) -> list[Fold]:
@@ -251,7 +300,8 @@ def _observer(
     for train_rows, test_rows in fold_rows:
         check_no_leak(observer.episode, train_rows, test_rows)
     targets = np.concatenate([observer.labels[h][:, filters[h].kept] for h in heads], axis=1)
-    fitted = cross_fit(observer, targets, fold_rows, cfg, seeds, permutations=0)
+    column_head = np.concatenate([np.full(len(filters[h].kept), i) for i, h in enumerate(heads)])
+    fitted = cross_fit(observer, targets, fold_rows, cfg, seeds, 0, column_head)
     obs_weights = (
         weights
         if fitted.num_groups == weights.shape[1]
@@ -271,117 +321,4 @@ def _observer(
         same_episodes=same_episodes,
         steps=observer.num_steps,
         episodes=len(observer.episode_keys),
-    )
-
-
-# -- output -----------------------------------------------------------------------------------------------
-
-
-def _config_dict(cfg: TrainConfig) -> dict[str, Any]:
-    from vlaprobe.configs import config_to_dict
-
-    return config_to_dict(cfg)
-
-
-def _probe_meta(
-    data: ProbeData,
-    cfg: TrainConfig,
-    seeds: dict[str, int],
-    heads: list[str],
-    filters: dict[str, LabelFilter],
-    results: dict[str, HeadResult],
-    refit: bool,
-) -> dict[str, Any]:
-    return {
-        "format": FORMAT,
-        "format_version": FORMAT_VERSION,
-        "model_id": data.model_id,
-        "pooling": data.pooling,
-        "hidden_size": data.hidden_size,
-        "num_hidden_states": data.num_hidden_states,
-        "layers": data.layers,
-        "threshold": cfg.probe.threshold,
-        "action_tokens": "mean over the 7 action-token positions"
-        if data.pooling == "action_tokens"
-        else None,
-        "heads": {
-            h: {
-                "atom_names": data.atom_names[h],
-                "kept": results[h].atoms,
-                "kept_index": filters[h].kept.tolist(),
-                "dropped": filters[h].dropped,
-                "best_layer": results[h].best.layer,
-                "best_metric": results[h].best.metric,
-                "best_value": results[h].best.value,
-                "best_rule": results[h].best.rule,
-            }
-            for h in heads
-        },
-        "standardized": cfg.probe.standardize,
-        "trained_on": {
-            "episodes": len(data.episode_keys),
-            "steps": data.num_steps,
-            "split": "all episodes (refit after k-fold)" if refit else "training split",
-        },
-        "config": _config_dict(cfg),
-        "seeds": seeds,
-        "versions": versions(),
-        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-    }
-
-
-def _evaluation(
-    data: ProbeData,
-    cfg: TrainConfig,
-    seeds: dict[str, int],
-    folds: list[Fold],
-    fold_rows: list[tuple[np.ndarray, np.ndarray]],
-    fitted: CrossFit,
-    results: dict[str, HeadResult],
-    observer: ObserverInfo | None,
-) -> Evaluation:
-    tasks = {str(int(t)): int((data.episode_tasks == t).sum()) for t in np.unique(data.episode_tasks)}
-    n = len(folds)
-    test_episodes = sum(len(f.test) for f in folds) / n
-    split = Split(
-        unit="episode",
-        stratified_by="task",
-        folds=n,
-        test_fraction=cfg.split.test_fraction if n == 1 else 1 / n,
-        realized_test_fraction=round(test_episodes / len(data.episode_keys), 5),
-        train=Episodes(
-            episodes=int(sum(len(f.train) for f in folds) / n),
-            steps=int(sum(len(tr) for tr, _ in fold_rows) / n),
-        ),
-        test=Episodes(episodes=int(test_episodes), steps=int(sum(len(te) for _, te in fold_rows) / n)),
-        test_episodes=[data.episode_keys[i] for i in fitted.episodes],
-        leak_check="passed: no step of a test episode was among the training rows",
-    )
-    permutations = cfg.shuffled_permutations if cfg.shuffled_control else 0
-    return Evaluation(
-        model_id=data.model_id,
-        pooling=data.pooling,
-        layers=list(data.layers),
-        hidden_size=data.hidden_size,
-        threshold=cfg.probe.threshold,
-        metrics=list(METRICS),
-        dataset=Dataset(episodes=len(data.episode_keys), steps=data.num_steps, episodes_per_task=tasks),
-        split=split,
-        bootstrap=Bootstrap(
-            unit="test episode",
-            interval="95% percentile",
-            resamples=cfg.bootstrap,
-            auprc_resamples=cfg.auprc_bootstrap,
-            undefined=(
-                "a resample lacking a class the test set has leaves balanced accuracy and F1 undefined in "
-                "that resample; `defined` counts the resamples that defined each figure"
-            ),
-        ),
-        controls=Controls(
-            shuffled_labels=cfg.shuffled_control, shuffled_permutations=permutations, observer=observer
-        ),
-        heads=results,
-        config=_config_dict(cfg),
-        seeds=seeds,
-        versions=versions(),
     )

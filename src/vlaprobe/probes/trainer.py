@@ -1,23 +1,19 @@
-"""Multi-label linear probes for every layer at once: one batched matmul per step, not a loop over layers.
+"""Per-layer multi-label linear probes, fit to convergence: standardised features, L2 strength by cross-validation.
 
-All layers' probes are slices of one weight tensor. A minibatch takes the same steps from every layer,
-one ``torch.baddbmm`` gives all logits and one ``torch.bmm`` all weight gradients. The loss is a sum of
-independent per-layer, per-atom BCE terms and Adam is elementwise, so this equals training every probe on
-its own, only faster. What makes it fast on a CPU:
+All layers' probes are slices of one weight tensor and every (layer, atom) is an independent L2-regularised
+logistic regression, solved together by the batched L-BFGS of :mod:`vlaprobe.probes.lbfgs` (one ``baddbmm``
+for every logit, one ``bmm`` for every weight gradient) until each one's gradient is below ``tol``:
 
-- the training rows are copied once, shuffled and converted to the compute dtype, into one
-  (layers, rows, hidden) tensor; a minibatch is then a contiguous slice (no gather, no conversion) and
-  each epoch visits the minibatches in a new random order;
-- gradients are the one-line logistic-regression formula, written into preallocated buffers (no autograd,
-  no fresh multi-megabyte allocations that page-fault on every step);
-- internally the weight is laid out (layers, atoms, hidden), for which the gradient matmul runs fastest;
-  :class:`LinearProbes` exposes it as (layers, hidden, atoms);
-- few epochs of small minibatches: a linear probe needs many updates, not many passes over the data.
+1. the training rows are copied once into one float32 (layers, rows, hidden) tensor, standardised with
+   their own mean and standard deviation per layer and feature (saved with the probes, applied at readout);
+2. the inverse L2 strength C is chosen per layer and head by episode-grouped cross-validation on the
+   training rows (:mod:`vlaprobe.probes.regularization`): every (fold, C, atom) is one more column of the
+   same matmuls, with the fold's held-out rows weighted 0;
+3. the probes are fit on all training rows with their layer's and head's C.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,6 +21,8 @@ import torch
 
 from vlaprobe.configs.train import ProbeConfig
 from vlaprobe.devices import resolve_device
+from vlaprobe.probes.lbfgs import Convergence, fit_logistic, l2_of_c
+from vlaprobe.probes.regularization import ColumnGroups, CrossValidation, choose_c
 
 
 @dataclass
@@ -39,6 +37,25 @@ class LinearProbes:
     """(layers, hidden) training-split feature means when standardizing, else None."""
     std: torch.Tensor | None = None
     """(layers, hidden) training-split feature standard deviations when standardizing, else None."""
+    c: np.ndarray | None = None
+    """(layers, atoms) inverse L2 strength each probe was fit with (scikit-learn's C)."""
+    convergence: Convergence | None = None
+    """Where the solver stopped for each (layer, atom)."""
+    cv: CrossValidation | None = None
+    """The cross-validation that chose ``c`` (None when C was given)."""
+
+    def columns(self, cols: np.ndarray | slice) -> LinearProbes:
+        """The probes of some atoms only (same standardisation)."""
+        conv = self.convergence
+        return LinearProbes(
+            self.weight[:, :, cols],
+            self.bias[:, cols],
+            self.mean,
+            self.std,
+            None if self.c is None else self.c[:, cols],
+            None if conv is None else conv.columns(cols),
+            self.cv,
+        )
 
     def logits(self, hidden: torch.Tensor, rows: np.ndarray | None = None, chunk: int = 1024) -> torch.Tensor:
         """Logits (layers, rows, atoms), on the CPU, of ``rows`` (default all) of ``hidden`` (layers, steps, hidden)."""
@@ -59,104 +76,73 @@ class LinearProbes:
         return out
 
 
-def _training_matrix(
-    hidden: torch.Tensor,
-    rows: torch.Tensor,
-    dtype: torch.dtype,
-    device: torch.device,
-    standardize: bool,
-    chunk: int = 512,
+def training_matrix(
+    hidden: torch.Tensor, rows: np.ndarray, device: torch.device, standardize: bool, chunk: int = 512
 ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
-    """``hidden[:, rows]`` as one contiguous tensor in ``dtype`` on ``device``, standardized if asked.
+    """``hidden[:, rows]`` as one contiguous float32 tensor on ``device``, standardised if asked.
 
     Returns (matrix, mean, std); the statistics (float32, (layers, hidden)) are over exactly these rows.
     """
+    index = torch.as_tensor(np.asarray(rows), dtype=torch.long)
     num_layers, _, hidden_size = hidden.shape
-    out = torch.empty((num_layers, len(rows), hidden_size), dtype=dtype, device=device)
-    total = torch.zeros((num_layers, hidden_size), dtype=torch.float64, device=device)
-    square = torch.zeros_like(total)
-    for start in range(0, len(rows), chunk):
-        part = hidden.index_select(1, rows[start : start + chunk].to(hidden.device)).to(device)
-        out[:, start : start + len(part[0])].copy_(part)
-        if standardize:
-            part = part.double()
-            total += part.sum(1)
-            square += (part * part).sum(1)
+    out = torch.empty((num_layers, len(index), hidden_size), dtype=torch.float32, device=device)
+    for start in range(0, len(index), chunk):
+        part = index[start : start + chunk]
+        out[:, start : start + len(part)].copy_(hidden.index_select(1, part.to(hidden.device)))
     if not standardize:
         return out, None, None
-    mean = total / len(rows)
-    std = (square / len(rows) - mean * mean).clamp_min(0).sqrt().clamp_min(1e-6)  # constant feature: no 0/0
+    mean = out.double().mean(1)
+    std = out.double().std(1, unbiased=False).clamp_min(1e-6)  # a constant feature: no 0/0
     mean, std = mean.float(), std.float()
-    for start in range(0, len(rows), chunk):
+    for start in range(0, len(index), chunk):
         view = out[:, start : start + chunk]
-        view.copy_((view.float() - mean[:, None]) / std[:, None])
+        view.sub_(mean[:, None]).div_(std[:, None])
     return out, mean, std
 
 
-def num_epochs(num_rows: int, cfg: ProbeConfig) -> int:
-    """Epochs actually run: ``cfg.epochs``, or more if that gives fewer than ``cfg.min_updates`` updates."""
-    per_epoch = math.ceil(num_rows / cfg.batch_size)
-    return max(cfg.epochs, math.ceil(cfg.min_updates / per_epoch))
-
-
 def fit_probes(
-    hidden: torch.Tensor, targets: np.ndarray, rows: np.ndarray, cfg: ProbeConfig, seed: int
+    hidden: torch.Tensor,
+    targets: np.ndarray,
+    rows: np.ndarray,
+    cfg: ProbeConfig,
+    seed: int,
+    groups: ColumnGroups | None = None,
+    c: float | None = None,
 ) -> LinearProbes:
-    """Train one multi-label probe per layer on ``rows`` of ``hidden`` (layers, steps, hidden).
+    """Fit one multi-label probe per layer on ``rows`` of ``hidden`` (layers, steps, hidden).
 
-    ``targets`` is bool/float (steps, atoms) over all steps; only ``rows`` are read. Weights start at zero
-    and biases at each atom's log-odds in the training rows, so the first step already predicts the base
-    rates. AdamW (plain Adam when ``weight_decay`` is 0) with a cosine learning rate from ``cfg.lr`` to 0
-    over :func:`num_epochs` epochs.
+    ``targets`` is bool/float (steps, atoms) over all steps; only ``rows`` are read. C is ``c`` when given,
+    the single value of ``cfg.c_grid``, or chosen per layer and column group by cross-validation over the
+    training episodes (needs ``groups``). Class balancing (``cfg.balance``) weights positives by the
+    training negative/positive ratio.
     """
     device = resolve_device(cfg.device)
-    dtype = torch.bfloat16 if cfg.compute_dtype == "bfloat16" else torch.float32
-    generator = torch.Generator().manual_seed(seed)
-    rows_np = np.asarray(rows)
-    if len(rows_np) == 0:
+    rows = np.sort(np.asarray(rows))
+    if len(rows) == 0:
         raise ValueError("no training rows")
-    order = torch.as_tensor(rows_np, dtype=torch.long)[torch.randperm(len(rows_np), generator=generator)]
-    x, mean, std = _training_matrix(hidden, order, dtype, device, cfg.standardize)
-    y = torch.as_tensor(np.asarray(targets)[order.numpy()], dtype=torch.float32, device=device)
-    n, num_atoms = y.shape
-    num_layers, _, hidden_size = x.shape
-
-    freq = y.mean(0).clamp(1e-4, 1 - 1e-4)
-    pos_weight = (1 - freq) / freq if cfg.balance else None
-    weight = torch.zeros((num_layers, num_atoms, hidden_size), device=device, requires_grad=True)
-    bias = torch.logit(freq).expand(num_layers, num_atoms).contiguous().requires_grad_(True)
-    groups = [{"params": [weight], "weight_decay": cfg.weight_decay}, {"params": [bias], "weight_decay": 0.0}]
-    try:  # one fused kernel per step (CPU support since torch 2.4); the weight decay is on weights only
-        optimizer = torch.optim.AdamW(groups, lr=cfg.lr, fused=True)
-    except RuntimeError:
-        optimizer = torch.optim.AdamW(groups, lr=cfg.lr, foreach=True)
-    weight.grad = torch.zeros_like(weight)
-    bias.grad = torch.zeros_like(bias)
-    low_precision_weight = torch.empty_like(weight, dtype=dtype) if dtype != torch.float32 else None
-
-    starts = torch.arange(0, n, cfg.batch_size)
-    epochs = num_epochs(n, cfg)
-    total_steps = epochs * len(starts)
-    step = 0
-    with torch.no_grad():
-        for _ in range(epochs):
-            for start in starts[torch.randperm(len(starts), generator=generator)].tolist():
-                xb, yb = x[:, start : start + cfg.batch_size], y[start : start + cfg.batch_size]
-                w = weight if low_precision_weight is None else low_precision_weight.copy_(weight)
-                logits = torch.baddbmm(bias[:, None].to(dtype), xb, w.transpose(1, 2))
-                p = torch.sigmoid(logits.float())
-                # d BCE / d logit = p - y; with a positive-class weight c: p (1 + (c - 1) y) - c y.
-                grad = p.sub_(yb) if pos_weight is None else p * (1 + (pos_weight - 1) * yb) - pos_weight * yb
-                grad /= len(yb)
-                if dtype == torch.float32:
-                    torch.bmm(grad.transpose(1, 2), xb, out=weight.grad)
-                else:
-                    weight.grad.copy_(torch.bmm(grad.to(dtype).transpose(1, 2), xb))
-                torch.sum(grad, dim=1, out=bias.grad)
-                for group in optimizer.param_groups:
-                    group["lr"] = cfg.lr * 0.5 * (1 + math.cos(math.pi * step / total_steps))
-                optimizer.step()
-                step += 1
-    return LinearProbes(
-        weight=weight.detach().transpose(1, 2).contiguous(), bias=bias.detach(), mean=mean, std=std
+    x, mean, std = training_matrix(hidden, rows, device, cfg.standardize)
+    y = torch.as_tensor(np.asarray(targets)[rows], dtype=torch.float32, device=device)
+    num_layers, n = x.shape[0], x.shape[1]
+    cv = None
+    if c is not None or len(cfg.c_grid) == 1:
+        per_column = np.full((num_layers, y.shape[1]), c if c is not None else cfg.c_grid[0])
+    elif groups is None:
+        raise ValueError("choosing C by cross-validation needs the rows' episodes (groups=)")
+    else:
+        cv, per_column = choose_c(x, y, rows, groups, cfg, seed)
+    weight = None
+    if cfg.balance:
+        freq = y.mean(0).clamp(1e-4, 1 - 1e-4)
+        weight = 1 + ((1 - freq) / freq - 1) * y
+    l2 = torch.as_tensor(l2_of_c(per_column, n), dtype=torch.float32)
+    w, b, conv = fit_logistic(
+        x,
+        y,
+        l2,
+        weight=weight,
+        tol=cfg.tol,
+        max_iter=cfg.max_iter,
+        history=cfg.history,
+        memory_mb=cfg.memory_mb,
     )
+    return LinearProbes(weight=w, bias=b, mean=mean, std=std, c=per_column, convergence=conv, cv=cv)

@@ -104,7 +104,7 @@ def curves(panels: dict[str, list[Series]], layers: list[int], title: str, dpi: 
     x = np.asarray(layers)
     for ax, (metric, series) in zip(axes[0], panels.items(), strict=True):
         for s in series:
-            (line,) = ax.plot(x, s.value, s.style, label=s.label, linewidth=1.4)
+            (line,) = ax.plot(x, s.value, s.style, label=s.label, linewidth=1.4, markersize=3)
             if s.low is not None and s.high is not None:
                 ax.fill_between(x, s.low, s.high, color=line.get_color(), alpha=0.2, linewidth=0)
         ax.set_title(metric_label(metric), fontsize=9)

@@ -47,41 +47,37 @@ def write_report(cfg: ReportConfig, sections: Sequence[Section] = ()) -> Path:
     out = Path(cfg.out) if cfg.out is not None else Path(cfg.probes).parent / "report"
     check_owned_folder(out, REPORT_FOLDER)  # a folder of someone else's files is never written into
     evaluation = read_evaluation(cfg.probes)
+    out.mkdir(parents=True, exist_ok=True)
     mark_folder(out, REPORT_FOLDER.owner)
-    layers = list(evaluation.layers)
-    heads = evaluation.heads
     title = cfg.title or f"Probing {evaluation.model_id} ({evaluation.pooling} pooling)"
-    figures: list[Figure] = []
+    figures = _heatmaps(out, evaluation, cfg) + _curve_figures(out, evaluation, cfg)
+    tables = _tables(evaluation)
+    write_atomic(out / "tables.json", json.dumps(tables, indent=1) + "\n")
+    extra = [*sections, *find_sections(Path(cfg.probes))]
+    page = out / REPORT_FILE
+    write_atomic(page, render_page(title, evaluation, tables, figures, extra))
+    return page
 
-    # Heatmaps: probes, then controls.
-    blocks = [
-        (
-            "probe",
-            cfg.metric,
-            f"heatmap_{cfg.metric}",
-            f"Per-predicate {metric_label(cfg.metric)} of the probes",
-        )
-    ]
-    if any(h.selectivity is not None for h in heads.values()):
-        blocks.append(
-            (
-                "selectivity",
-                "accuracy",
-                "heatmap_selectivity",
-                "Selectivity: probe accuracy minus shuffled-label control accuracy",
-            )
-        )
+
+def _heatmap_blocks(evaluation: Evaluation, metric: str) -> list[tuple[str, str, str, str]]:
+    """(part, metric, file stem, caption) of each heatmap: the probes, then the controls this run has."""
+    label = metric_label(metric)
+    blocks = [("probe", metric, f"heatmap_{metric}", f"Per-predicate {label} of the probes")]
+    if any(h.selectivity is not None for h in evaluation.heads.values()):
+        caption = "Selectivity: probe accuracy minus shuffled-label control accuracy"
+        blocks.append(("selectivity", "accuracy", "heatmap_selectivity", caption))
     if evaluation.controls.observer is not None:
         observer = evaluation.controls.observer.model_id
-        blocks.append(
-            (
-                "observer",
-                cfg.metric,
-                f"heatmap_observer_{cfg.metric}",
-                f"Per-predicate {metric_label(cfg.metric)} of probes on the observer control ({observer})",
-            )
-        )
-    for part, metric, stem, caption in blocks:
+        caption = f"Per-predicate {label} of probes on the observer control ({observer})"
+        blocks.append(("observer", metric, f"heatmap_observer_{metric}", caption))
+    return blocks
+
+
+def _heatmaps(out: Path, evaluation: Evaluation, cfg: ReportConfig) -> list[Figure]:
+    """Write the heatmaps (layers x predicates) with their data; return them as page figures."""
+    layers = list(evaluation.layers)
+    figures = []
+    for part, metric, stem, caption in _heatmap_blocks(evaluation, cfg.metric):
         columns, values, rows = _heatmap_data(evaluation, part, metric)
         split_after = sum(1 for c in columns if c.split(": ", 1)[0] != "action")
         diverging = part == "selectivity"
@@ -98,52 +94,69 @@ def write_report(cfg: ReportConfig, sections: Sequence[Section] = ()) -> Path:
             vmax=bound,
             cmap="RdBu_r" if diverging else "viridis",
         )
-        _write_figure(
-            out,
-            stem,
-            rendered,
-            rows,
-            {"layers": layers, "columns": columns, "part": part, "metric": metric, "values": _list(values)},
-        )
+        data = {"layers": layers, "columns": columns, "part": part, "metric": metric, "values": _list(values)}
+        _write_figure(out, stem, rendered, rows, data)
         figures.append(Figure(stem, caption, rendered.png))
+    return figures
 
-    # Curves per head.
-    for head, h in heads.items():
+
+def _curve_figures(out: Path, evaluation: Evaluation, cfg: ReportConfig) -> list[Figure]:
+    """Write each head's metric-versus-layer curves with their data; return them as page figures."""
+    layers = list(evaluation.layers)
+    figures = []
+    for head, h in evaluation.heads.items():
         panels, rows = _curve_data(h, layers, evaluation.metrics)
         caption = f"{head} atoms: mean over {len(h.atoms)} probed atoms per layer, 95% bootstrap bands"
         rendered = curves(panels, layers, caption, cfg.dpi)
+        series = {
+            m: {s.label: {"value": _list(s.value), "low": _list(s.low), "high": _list(s.high)} for s in ss}
+            for m, ss in panels.items()
+        }
         _write_figure(
-            out,
-            f"curves_{head}",
-            rendered,
-            rows,
-            {
-                "layers": layers,
-                "head": head,
-                "series": {
-                    m: {
-                        s.label: {"value": _list(s.value), "low": _list(s.low), "high": _list(s.high)}
-                        for s in ss
-                    }
-                    for m, ss in panels.items()
-                },
-            },
+            out, f"curves_{head}", rendered, rows, {"layers": layers, "head": head, "series": series}
         )
         figures.append(Figure(f"curves_{head}", caption, rendered.png))
+    return figures
 
-    tables = {
+
+def _tables(evaluation: Evaluation) -> dict[str, Any]:
+    """The page's tables per head: headline, best layer per predicate, dropped atoms, skipped predicates."""
+    return {
         head: {
+            "headline": headline(head, h),
             "best_layer": _best_table(h, evaluation.metrics),
             "dropped": [d.__dict__ for d in h.dropped],
             "skipped_predicates": h.skipped_predicates,
         }
-        for head, h in heads.items()
+        for head, h in evaluation.heads.items()
     }
-    write_atomic(out / "tables.json", json.dumps(tables, indent=1) + "\n")
-    extra = [*sections, *find_sections(Path(cfg.probes))]
-    page = out / REPORT_FILE
-    write_atomic(page, render_page(title, evaluation, tables, figures, extra))
-    return page
+
+
+def headline(head: str, h: HeadResult) -> str:
+    """One sentence: the best layer, its figure with interval, and whether it beats the task x time baseline
+    beyond its interval (the paired bootstrap interval of probe minus baseline lies above 0)."""
+    best, metric = h.best, h.best.metric
+    text = f"{head}: best layer {best.layer}, {metric_label(metric)} {_num(best.value)} [{_num(best.low)}, {_num(best.high)}]"
+    tt, sel = h.part("task_time_baseline"), h.part("selectivity_task_time")
+    if tt is None or metric not in tt:
+        return text + "."
+    level = tt[metric].layer
+    text += f"; task × time baseline {_num(level.value[0])} [{_num(level.low[0])}, {_num(level.high[0])}]"
+    if sel is None or metric not in sel:
+        return text + "."
+    diff = sel[metric].layer
+    low, high, value = diff.low[best.index], diff.high[best.index], diff.value[best.index]
+    if low is not None and low > 0:
+        verdict = "beats it beyond its interval"
+    elif high is not None and high < 0:
+        verdict = "is below it beyond its interval"
+    else:
+        verdict = "does not beat it beyond its interval"
+    return text + f": the best layer {verdict} (difference {_num(value)} [{_num(low)}, {_num(high)}])."
+
+
+def _num(v: float | None) -> str:
+    return "–" if v is None else f"{v:.3f}"
 
 
 def main(cfg: ReportConfig) -> int:
@@ -213,6 +226,17 @@ def _cell(v: float) -> float | None:
     return None if not np.isfinite(v) else round(float(v), 5)
 
 
+CURVE_SERIES = (
+    ("probe", "probe", "-"),
+    ("observer", "observer control", "-."),
+    ("control", "shuffled-label control", "--"),
+    ("task_time_baseline", "task × time baseline", "s:"),
+    ("task_baseline", "task baseline", "v:"),
+    ("baseline", "majority baseline", ":"),
+)
+"""(part, legend label, line style) of the curves, drawn in this order."""
+
+
 def _curve_data(
     h: HeadResult, layers: list[int], metrics: list[str]
 ) -> tuple[dict[str, list[Series]], list[dict]]:
@@ -222,12 +246,7 @@ def _curve_data(
     n = len(layers)
     for m in metrics:
         series = []
-        for part, label, style in (
-            ("probe", "probe", "-"),
-            ("observer", "observer control", "-."),
-            ("control", "shuffled-label control", "--"),
-            ("baseline", "majority baseline", ":"),
-        ):
+        for part, label, style in CURVE_SERIES:
             summaries = h.part(part)
             if summaries is None or m not in summaries:
                 continue
@@ -276,10 +295,12 @@ def _best_table(h: HeadResult, metrics: list[str]) -> dict[str, Any]:
                 if summaries is None or m not in summaries:
                     continue
                 s = summaries[m].predicate if by_predicate else summaries[m].layer
-                k = 0 if part == "baseline" else i  # the baseline has one row for all layers
+                k = 0 if part.endswith("baseline") else i  # a baseline has one row for all layers
                 at = (k, j) if by_predicate else (k,)
                 row[f"{part}.{m}"] = _at(s.value, at)
-                if part in ("probe", "selectivity", "observer"):
+                if part in ("probe", "selectivity", "selectivity_task_time", "observer") or part.endswith(
+                    "baseline"
+                ):
                     row[f"{part}.{m}.ci"] = [_at(s.low, at), _at(s.high, at)]
                     row[f"{part}.{m}.defined"] = _at(s.defined, at)
             if h.control_spread is not None and m in h.control_spread:

@@ -50,8 +50,11 @@ of its collision-geom bounding box.
   to pick until it is grasped; then the place target, which **stays** the target after a release until the
   released object comes to rest (``resting``: touching the table or another object, moving slower than
   ``REST_SPEED`` = 1 cm/s and turning slower than ``REST_SPIN`` = 0.1 rad/s; a bowl dropped from 1.5 cm
-  rests 4-5 steps later); resting away from the target, the object to pick is the target again. Nothing
-  while the goal holds and the object is not grasped.
+  rests 4-5 steps later); resting away from the target, the object to pick is the target again. After a
+  release the place stays the target until the goal has held ``GOAL_HOLD_STEPS`` = 3 consecutive steps (the
+  cognition's default debounce) or the object rests on the place; from then on nothing, also through a bounce
+  (episode t07_i02 of the default run: ``on`` 1, 1, 0, 1 read plate, none, plate, none before), until the object
+  is grasped again or comes to rest off its place. Without a release, nothing while the goal holds.
 """
 
 from __future__ import annotations
@@ -72,6 +75,9 @@ FINGER_SPEED = 0.005  # m/s: opening faster, the fingers let go; closing faster,
 SLIP_GAP = 0.001  # m: a finger this close to a slipping held object still holds it
 REST_SPEED = 0.01  # m/s: a released object moving slower (and turning slower than REST_SPIN) has come to rest
 REST_SPIN = 0.1  # rad/s
+GOAL_HOLD_STEPS = (
+    3  # steps the goal must hold after a release before the place directive ends (= default debounce)
+)
 
 
 def centers(state: WorldState) -> np.ndarray:
@@ -220,6 +226,10 @@ class Labeler:
         """Start a new episode: nothing held, nothing being placed."""
         self._held = -1
         self._placing = False
+        self._landed = (
+            False  # on its place for GOAL_HOLD_STEPS steps (or at rest on it): no directive any more
+        )
+        self._on_steps = 0  # consecutive steps on its place, not grasped
 
     def __call__(self, state: WorldState) -> tuple[np.ndarray, np.ndarray]:
         """(object bits (224,), action bits (12,)) as bool arrays."""
@@ -258,13 +268,19 @@ class Labeler:
             ]
         )
         towards = np.zeros(n, dtype=bool)
+        placed = bool(on[self._pick, self._place])
         if grasped[self._pick]:
-            self._placing = True
-        elif self._placing and resting(scene, state, self._pick):
-            self._placing = False
-        if grasped[self._pick] or (self._placing and not on[self._pick, self._place]):
+            self._placing, self._landed, self._on_steps = True, False, 0
+        else:
+            self._on_steps = self._on_steps + 1 if placed else 0
+            at_rest = resting(scene, state, self._pick)
+            self._landed |= placed and (self._on_steps >= GOAL_HOLD_STEPS or at_rest)
+            if (self._placing or self._landed) and at_rest:
+                self._placing = False
+                self._landed = placed  # at rest off its place (knocked off): the object to pick again
+        if grasped[self._pick] or (self._placing and not self._landed):
             towards[self._place] = True
-        elif not on[self._pick, self._place]:
+        elif not placed and not self._landed:
             towards[self._pick] = True
         act = np.concatenate([grasped, towards])
         return obj, act

@@ -59,13 +59,16 @@ involves(order_cycle, (R,M), B) :- violation(order_cycle, (R,M)), edge(R, X, Y, 
 message(grasped_many, "more than one object is grasped").
 violation(grasped_many, (grasped(X), grasped(Y))) :- grasped(X), grasped(Y), X @< Y.
 
-message(towards_not_one, "not exactly one object to move towards while the goal does not hold").
+message(towards_not_one, "not exactly one object to move towards while the goal does not hold (nor held recently)").
 violation(towards_not_one, on(X,Y)) :-
-    goal(X, Y), not(on(X, Y)), findall(O, should_move_towards(O), L), length(L, N), N \= 1.
+    goal(X, Y), not(on(X, Y)), not(recent(on(X, Y))), findall(O, should_move_towards(O), L), length(L, N), N \= 1.
 involves(towards_not_one, G, should_move_towards(O)) :- violation(towards_not_one, G), should_move_towards(O).
 
 % --- over the history ------------------------------------------------------------------------------------
 % (on its place only: while being picked, the object may lose and regain contact with what it stood on)
+message(on_while_grasped, "the task's object is on its place while still grasped").
+violation(on_while_grasped, (on(X,Y), grasped(X))) :- goal(X, Y), on(X, Y), grasped(X).
+
 message(placed_without_grasp, "the task's object came to rest on its place without having been grasped").
 violation(placed_without_grasp, (on(X,Y), grasped(X))) :-
     goal(X, Y), on(X, Y), not(prev(on(X, Y))), not(ever(grasped(X))).

@@ -1,0 +1,81 @@
+"""Predictors that know the task and the time but see no hidden state: what a probe must beat.
+
+Each is fit on training rows and predicts test rows, per atom, the majority class of a cell:
+
+- ``majority``: one cell (the per-atom training majority);
+- ``task``: the row's task;
+- ``task_time``: the row's task and the decile of its normalised episode time (step / episode length).
+
+A cell never seen in training falls back to the coarser one (task x time -> task -> all). Ties count as
+true (frequency >= 0.5), as the majority baseline always did. Plain numpy on labels and episode
+bookkeeping, so any store (or any other labels) can be scored the same way::
+
+    from vlaprobe.probes.baselines import predict_baselines
+    pred = predict_baselines(labels, episode, episode_tasks, train_rows, test_rows)
+    pred["task_time"]        # bool (test rows, atoms)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+BASELINES = ("majority", "task", "task_time")
+"""The baselines, coarsest first."""
+TIME_BINS = 10
+"""Deciles of normalised episode time."""
+
+
+def normalised_time(episode: np.ndarray) -> np.ndarray:
+    """Per row: its position within its episode divided by the episode's length, in [0, 1).
+
+    Rows of an episode are taken in row order (they need not be contiguous)."""
+    episode = np.asarray(episode)
+    order = np.argsort(episode, kind="stable")
+    sorted_ep = episode[order]
+    starts = np.flatnonzero(np.r_[True, sorted_ep[1:] != sorted_ep[:-1]])
+    lengths = np.diff(np.r_[starts, len(episode)])
+    first = np.repeat(starts, lengths)
+    out = np.empty(len(episode))
+    out[order] = (np.arange(len(episode)) - first) / np.repeat(lengths, lengths)
+    return out
+
+
+def time_bin(episode: np.ndarray, bins: int = TIME_BINS) -> np.ndarray:
+    """Per row: the bin (0 .. bins - 1) of its normalised episode time."""
+    return np.minimum((normalised_time(episode) * bins).astype(np.int64), bins - 1)
+
+
+def _cell_majority(
+    labels: np.ndarray, cells: np.ndarray, test_cells: np.ndarray, fallback: np.ndarray
+) -> np.ndarray:
+    """Per test row: the training majority of its cell, or ``fallback``'s row where the cell is unseen."""
+    out = fallback.copy()
+    for cell in np.unique(test_cells):
+        members = cells == cell
+        if members.any():
+            out[test_cells == cell] = labels[members].mean(0) >= 0.5
+    return out
+
+
+def predict_baselines(
+    labels: np.ndarray,
+    episode: np.ndarray,
+    episode_tasks: np.ndarray,
+    train_rows: np.ndarray,
+    test_rows: np.ndarray,
+    bins: int = TIME_BINS,
+) -> dict[str, np.ndarray]:
+    """Predictions of every baseline for ``test_rows``, fit on ``train_rows``.
+
+    ``labels`` bool (rows, atoms); ``episode`` int (rows,) episode position of each row; ``episode_tasks``
+    int (episodes,) the task of each episode. Returns baseline name -> bool (test rows, atoms).
+    """
+    labels = np.asarray(labels, bool)
+    task = np.asarray(episode_tasks)[np.asarray(episode)]
+    when = time_bin(episode, bins)
+    train_y = labels[train_rows]
+    majority = np.broadcast_to(train_y.mean(0) >= 0.5, (len(test_rows), labels.shape[1])).copy()
+    by_task = _cell_majority(train_y, task[train_rows], task[test_rows], majority)
+    cell = task * bins + when
+    by_time = _cell_majority(train_y, cell[train_rows], cell[test_rows], by_task)
+    return {"majority": majority, "task": by_task, "task_time": by_time}

@@ -1,0 +1,242 @@
+"""Many independent L2-regularised logistic regressions solved at once by a batched L-BFGS.
+
+Every (layer, column) pair is its own binary logistic regression with objective
+
+    f(w, b) = sum_i s_i [softplus(z_i) - y_i z_i] / n  +  (l2 / 2) ||w||^2,     z_i = x_i . w + b
+
+(``s_i``: row weights, e.g. a fold's membership or class balancing; ``n``: the rows that count; the bias is
+not penalised). With ``l2 = 1 / (C n)`` this is scikit-learn's ``LogisticRegression(C=C)`` divided by
+``C n``: the same minimiser. The problems never interact, but they share the data, so one ``baddbmm`` gives
+every column's logits and one ``bmm`` every weight gradient. Each column runs its own L-BFGS (its own
+history, step length and stopping point): the two-loop recursion is a handful of per-column dot products,
+and the Armijo backtracking line search costs no matmul, because the logits are linear in the step length
+(``z + a dz``). A column stops when the largest absolute entry of its gradient is at most ``tol`` (the
+criterion of scikit-learn's lbfgs), or at ``max_iter`` iterations. Layers are processed in chunks that fit
+a memory budget.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+
+@dataclass
+class Convergence:
+    """Where each (layer, column) problem stopped."""
+
+    iterations: np.ndarray
+    """int (layers, columns): L-BFGS iterations run."""
+    loss: np.ndarray
+    """(layers, columns): final objective (weighted mean log-loss + L2 term)."""
+    grad_norm: np.ndarray
+    """(layers, columns): final largest absolute gradient entry."""
+    converged: np.ndarray
+    """bool (layers, columns): stopped with ``grad_norm <= tol`` (else at the cap or a failed line search)."""
+    tol: float
+    max_iter: int
+
+    def columns(self, cols: np.ndarray | slice) -> Convergence:
+        """The same figures for some columns only."""
+        return Convergence(
+            self.iterations[:, cols],
+            self.loss[:, cols],
+            self.grad_norm[:, cols],
+            self.converged[:, cols],
+            self.tol,
+            self.max_iter,
+        )
+
+
+@dataclass
+class _Problem:
+    """One layer chunk's data: features, targets, row weights, normalisers and penalties."""
+
+    x: torch.Tensor  # (L, n, H)
+    y: torch.Tensor  # (n, K)
+    weight: torch.Tensor | None  # (n, K) row weights, or None (all 1)
+    inv_n: torch.Tensor  # (K,) 1 / rows that count
+    l2: torch.Tensor  # (L, K)
+
+    def logits(self, p: torch.Tensor) -> torch.Tensor:
+        """(L, n, K) logits of parameters ``p`` (L, K, H + 1), the bias last."""
+        return torch.baddbmm(p[:, None, :, -1], self.x, p[:, :, :-1].transpose(1, 2))
+
+    def data_loss(self, z: torch.Tensor) -> torch.Tensor:
+        loss = F.softplus(z) - self.y * z
+        if self.weight is not None:
+            loss = loss * self.weight
+        return loss.sum(1) * self.inv_n
+
+    def gradient(self, z: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+        r = torch.sigmoid(z).sub_(self.y)
+        if self.weight is not None:
+            r.mul_(self.weight)
+        r.mul_(self.inv_n)
+        g = torch.empty_like(p)
+        torch.bmm(r.transpose(1, 2), self.x, out=g[:, :, :-1])
+        g[:, :, -1] = r.sum(1)
+        g[:, :, :-1].add_(p[:, :, :-1] * self.l2[..., None])
+        return g
+
+    def penalty(self, p: torch.Tensor) -> torch.Tensor:
+        return 0.5 * self.l2 * (p[:, :, :-1] ** 2).sum(-1)
+
+
+def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return (a * b).sum(-1)
+
+
+def _direction(
+    g: torch.Tensor, hist: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]], gamma: torch.Tensor
+):
+    """The L-BFGS two-loop recursion, per column; pairs with rho 0 (no curvature) contribute nothing."""
+    q = g.clone()
+    alphas = []
+    for s, yv, rho in reversed(hist):
+        a = rho * _dot(s, q)
+        q.sub_(a[..., None] * yv)
+        alphas.append(a)
+    q.mul_(gamma[..., None])
+    for (s, yv, rho), a in zip(hist, reversed(alphas), strict=True):
+        q.add_((a - rho * _dot(yv, q))[..., None] * s)
+    return q.neg_()
+
+
+def _line_search(
+    prob: _Problem,
+    p: torch.Tensor,
+    d: torch.Tensor,
+    z: torch.Tensor,
+    f: torch.Tensor,
+    gd: torch.Tensor,
+    step: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-column Armijo backtracking from ``step``; returns (accepted step, 0 where none was found), logits dz."""
+    dz = prob.logits(d)
+    pw, dw = p[:, :, :-1], d[:, :, :-1]
+    ww, wd, dd = _dot(pw, pw), _dot(pw, dw), _dot(dw, dw)
+    pending = gd < 0
+    accepted = torch.zeros_like(step)
+    for _ in range(40):
+        if not bool(pending.any()):
+            break
+        trial = prob.data_loss(z + step[:, None] * dz) + 0.5 * prob.l2 * (
+            ww + 2 * step * wd + step * step * dd
+        )
+        ok = pending & (trial <= f + 1e-4 * step * gd)
+        accepted = torch.where(ok, step, accepted)
+        pending &= ~ok
+        step = torch.where(pending, step * 0.5, step)
+    return accepted, dz
+
+
+def _solve_chunk(prob: _Problem, p: torch.Tensor, tol: float, max_iter: int, history: int):
+    """Run L-BFGS on one layer chunk from ``p``; returns (p, iterations, loss, grad max, converged)."""
+    z = prob.logits(p)
+    f = prob.data_loss(z) + prob.penalty(p)
+    g = prob.gradient(z, p)
+    gmax = g.abs().amax(-1)
+    active = gmax > tol
+    iterations = torch.zeros_like(f, dtype=torch.long)
+    hist: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
+    gamma = torch.ones_like(f)
+    first = True
+    for it in range(max_iter):
+        if not bool(active.any()):
+            break
+        d = _direction(g, hist, gamma)
+        gd = _dot(g, d)
+        bad = gd >= 0  # not a descent direction (numerical trouble): fall back to the gradient
+        if bool(bad.any()):
+            d = torch.where(bad[..., None], -g, d)
+            gd = _dot(g, d)
+        d.mul_(active[..., None])
+        gd = torch.where(active, gd, torch.zeros_like(gd))
+        step = torch.ones_like(f)
+        if first:
+            step = torch.clamp(1.0 / g.abs().sum(-1).clamp_min(1e-12), max=1.0)
+            first = False
+        step, dz = _line_search(prob, p, d, z, f, gd, step)
+        stuck = active & (step == 0)
+        active &= ~stuck
+        s = d * step[..., None]
+        p = p + s
+        z = prob.logits(p) if it % 10 == 9 else z.add_(step[:, None] * dz)
+        f = prob.data_loss(z) + prob.penalty(p)
+        g_new = prob.gradient(z, p)
+        yv = g_new - g
+        sy = _dot(s, yv)
+        curved = sy > 1e-10
+        rho = torch.where(curved, 1.0 / torch.where(curved, sy, torch.ones_like(sy)), torch.zeros_like(sy))
+        gamma = torch.where(curved, sy / _dot(yv, yv).clamp_min(1e-20), gamma)
+        hist.append((s, yv, rho))
+        if len(hist) > history:
+            hist.pop(0)
+        iterations += active.long()
+        g = g_new
+        gmax = g.abs().amax(-1)
+        active &= gmax > tol
+    return p, iterations, f, gmax, gmax <= tol
+
+
+def fit_logistic(
+    x: torch.Tensor,
+    y: torch.Tensor,
+    l2: torch.Tensor,
+    *,
+    weight: torch.Tensor | None = None,
+    tol: float = 1e-4,
+    max_iter: int = 500,
+    history: int = 10,
+    memory_mb: float = 1024,
+) -> tuple[torch.Tensor, torch.Tensor, Convergence]:
+    """Fit every column of ``y`` on every layer of ``x``; return (weight (L, H, K), bias (L, K), convergence).
+
+    ``x`` float32 (layers, rows, hidden); ``y`` float (rows, columns) in {0, 1}; ``l2`` (layers, columns) the
+    penalty per problem; ``weight`` optional (rows, columns) row weights (0 leaves a row out of a column's
+    problem; ``n`` counts the rows with a weight). Starts at w = 0, b = the weighted log-odds.
+    """
+    num_layers, n, hidden = x.shape
+    k = y.shape[1]
+    y = y.to(x.device, torch.float32)
+    counts = (
+        (weight > 0).sum(0).float() if weight is not None else torch.full((k,), float(n), device=x.device)
+    )
+    inv_n = 1.0 / counts.clamp_min(1.0)
+    wy = y if weight is None else y * weight
+    total = counts if weight is None else weight.sum(0)
+    freq = (wy.sum(0) / total.clamp_min(1e-12)).clamp(1e-4, 1 - 1e-4)
+    per_layer = 4 * (6 * n * max(k, 1) + (2 * history + 8) * max(k, 1) * (hidden + 1))
+    chunk = max(1, min(num_layers, int(memory_mb * 2**20 // per_layer)))
+    weights = torch.empty((num_layers, hidden, k))
+    biases = torch.empty((num_layers, k))
+    out = {name: np.empty((num_layers, k)) for name in ("iterations", "loss", "grad_norm", "converged")}
+    with torch.no_grad():
+        for start in range(0, num_layers, chunk):
+            part = slice(start, min(num_layers, start + chunk))
+            prob = _Problem(x[part], y, weight, inv_n, l2[part].to(x.device, torch.float32))
+            p = torch.zeros((part.stop - part.start, k, hidden + 1), device=x.device)
+            p[:, :, -1] = torch.logit(freq)
+            p, iters, f, gmax, done = _solve_chunk(prob, p, tol, max_iter, history)
+            weights[part] = p[:, :, :-1].transpose(1, 2).cpu()
+            biases[part] = p[:, :, -1].cpu()
+            for name, v in zip(out, (iters, f, gmax, done), strict=True):
+                out[name][part] = v.cpu().numpy()
+    conv = Convergence(
+        iterations=out["iterations"].astype(np.int64),
+        loss=out["loss"],
+        grad_norm=out["grad_norm"],
+        converged=out["converged"].astype(bool),
+        tol=tol,
+        max_iter=max_iter,
+    )
+    return weights, biases, conv
+
+
+def l2_of_c(c: np.ndarray, rows: np.ndarray | float) -> np.ndarray:
+    """Our penalty ``l2`` for scikit-learn's inverse strength ``C`` on ``rows`` training rows: 1 / (C n)."""
+    return 1.0 / (np.asarray(c, np.float64) * np.maximum(np.asarray(rows, np.float64), 1.0))
