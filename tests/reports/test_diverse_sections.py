@@ -31,7 +31,7 @@ def probes(tmp_path_factory: pytest.TempPathFactory) -> Path:
             bootstrap=20,
             auprc_bootstrap=0,
             shuffled_permutations=1,
-            probe=ProbeConfig(min_updates=5),
+            probe=ProbeConfig(c_grid=(0.1,), max_iter=50),
         )
     )
     return out
