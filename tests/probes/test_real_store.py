@@ -148,7 +148,7 @@ def test_tiny_real_collection_through_train_and_report(tmp_path: Path) -> None:
         episodes_per_task=2,
         max_tries_per_task=2,
         keep_failed=True,
-        policy=PolicyConfig(device="cpu"),
+        policy=PolicyConfig(model="tiny", device="cpu"),
         progress=False,
         env=EnvConfig(image_size=128, max_steps=40),
     )

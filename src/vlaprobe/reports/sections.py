@@ -30,7 +30,10 @@ class Section:
     """What the template renders (a dataclass, typically read from a JSON file of the run)."""
 
 
-SECTION_PROVIDERS: list[str] = ["vlaprobe.cognition.monitor:report_section"]
+SECTION_PROVIDERS: list[str] = [
+    "vlaprobe.reports.compare:report_section",
+    "vlaprobe.cognition.monitor:report_section",
+]
 """``"module:function"`` providers, each ``(probes_folder: Path) -> Section | None``, in page order."""
 
 
