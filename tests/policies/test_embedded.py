@@ -33,6 +33,8 @@ def test_shipped_weights_load_with_the_declared_shape_and_statistics() -> None:
     assert all(p.dtype == policy.dtype for p in policy.model.parameters())  # float16 on disk, fp32 here
     random = load_policy("tiny", device="cpu")
     assert random.model_id == "tiny-openvla-seed0" and random.model.config.num_patches == 256
+    init = load_policy("tiny-libero-init", device="cpu")  # the control: the same network before training
+    assert init.model.config == cfg and init.model_id == "tiny-openvla-p28-seed0"
 
 
 def test_shipped_model_produces_valid_actions() -> None:

@@ -13,8 +13,9 @@ class PolicyConfig:
 
     model: str = "tiny-libero"
     """"tiny-libero" (the shipped tiny OpenVLA trained on LIBERO-spatial expert demonstrations, the default),
-    "tiny" (the same code with seeded random weights: the control observer), or an OpenVLA checkpoint folder
-    (official HF layout: config.json, *.safetensors, dataset_statistics.json, tokenizer.json)."""
+    "tiny-libero-init" (its network before training: seeded random weights, the control observer), "tiny" (the
+    random tiny model with OpenVLA's 256 patches), or an OpenVLA checkpoint folder (official HF layout:
+    config.json, *.safetensors, dataset_statistics.json, tokenizer.json)."""
     pooling: Literal["last_prompt", "mean_text", "mean_all", "action_tokens"] = "last_prompt"
     """Hidden state per layer: the last prompt position (the paper's choice), the mean over text or all
     prompt positions, or the 7 positions that choose the action tokens."""

@@ -4,7 +4,8 @@
 :func:`~vlaprobe.policies.openvla.tiny.tiny_config`) trained by ``vlaprobe finetune`` on the scripted expert's
 demonstrations of the 10 LIBERO-spatial tasks (recipe: ``recipes/tiny-libero.yaml``; figures: README). Its
 folder is an ordinary checkpoint folder (config.json with ``norm_stats``, ``model.safetensors`` stored in
-float16 to stay small, loaded in the run's dtype). ``tiny`` (built from a seed, random weights) is the control.
+float16 to stay small, loaded in the run's dtype). ``tiny-libero-init`` (its starting weights, built from a seed)
+is the control observer; ``tiny`` is the random tiny model with OpenVLA's 256 patches.
 """
 
 from __future__ import annotations
@@ -22,10 +23,16 @@ EMBEDDED_MODELS: dict[str, str] = {
 DEFAULT_MODEL = "tiny-libero"
 """The observer of ``vlaprobe run``, ``collect`` and ``serve`` when none is named."""
 
-CONTROL_MODEL = "tiny"
-"""The random control observer (seeded weights, same code): what ``vlaprobe run`` compares the default with."""
+SEEDED_MODELS: dict[str, int] = {"tiny": 14, "tiny-libero-init": 28}
+"""Random tiny models built from ``--seed`` (no file), by name -> ViT patch size. ``tiny`` has OpenVLA's 256
+patches; ``tiny-libero-init`` has tiny-libero's shape (64 patches) and, with seed 0, exactly the weights its
+training started from (``vlaprobe save-tiny --patch-size 28``)."""
 
-MODEL_NAMES = ("tiny", *EMBEDDED_MODELS)
+CONTROL_MODEL = "tiny-libero-init"
+"""The random control observer of ``vlaprobe run``: the default observer before its training (same network,
+same code, seeded weights), so the comparison isolates what training changed."""
+
+MODEL_NAMES = (*SEEDED_MODELS, *EMBEDDED_MODELS)
 """Every model that loads by name."""
 
 

@@ -17,7 +17,7 @@ from vlaprobe import devices
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.policies.base import POOLINGS, PolicyStep, Pooling
 from vlaprobe.policies.openvla import actions, checkpoint, preprocessing
-from vlaprobe.policies.openvla.embedded import embedded_folder
+from vlaprobe.policies.openvla.embedded import SEEDED_MODELS, embedded_folder
 from vlaprobe.policies.openvla.model import OpenVLA, Prediction, _pool
 from vlaprobe.policies.openvla.tiny import LIBERO_SPATIAL_LIKE_STATS, tiny_config, tiny_state_dict
 from vlaprobe.policies.openvla.tokenizer import HFTokenizer, Tokenizer, WordHashTokenizer, prompt_ids
@@ -112,9 +112,10 @@ class OpenVLAPolicy:
 
     @classmethod
     def load(cls, model: str, device: str = "auto", seed: int = 0, **kwargs: Any) -> OpenVLAPolicy:
-        """``load_policy``'s implementation: "tiny", a shipped model's name ("tiny-libero") or a checkpoint folder."""
-        if model == "tiny":
-            return cls.tiny(seed=seed, device=device, **kwargs)
+        """``load_policy``'s implementation: a seeded name ("tiny", "tiny-libero-init"), a shipped model's name
+        ("tiny-libero") or a checkpoint folder."""
+        if model in SEEDED_MODELS:
+            return cls.tiny(seed=seed, device=device, patch_size=SEEDED_MODELS[model], **kwargs)
         folder = embedded_folder(model)
         return cls.from_folder(model if folder is None else folder, device=device, **kwargs)
 
