@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -11,24 +10,41 @@ from tests.collection.test_store import make_meta
 from vlaprobe.collection.store import EpisodeInfo, episode_key
 from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.policies.openvla import checkpoint
-from vlaprobe.policies.openvla.tiny import LIBERO_SPATIAL_LIKE_STATS, tiny_config, tiny_state_dict
+from vlaprobe.policies.openvla.config import LlamaDims, OpenVLAConfig, ViTConfig
+from vlaprobe.policies.openvla.tiny import LIBERO_SPATIAL_LIKE_STATS, tiny_state_dict
 from vlaprobe.policies.openvla.tokenizer import WordHashTokenizer
 
-IMAGE = 56
-"""Image side of the small model: 4×4 patches of 14 px, so a step costs a few milliseconds."""
+IMAGE = 28
+"""Image side of the small model: 2×2 patches of 14 px, so a step costs a few milliseconds."""
 
 
-def small_config(image_size: int = IMAGE, hidden_size: int = 64):
-    """The tiny architecture at a small image size (same structure, 16 patches)."""
-    cfg = tiny_config(hidden_size)
-    return dataclasses.replace(
-        cfg,
-        featurizer=dataclasses.replace(cfg.featurizer, image_size=image_size),
-        fused_featurizer=dataclasses.replace(cfg.fused_featurizer, image_size=image_size),
+def small_config(image_size: int = IMAGE, hidden_size: int = 32, layers: int = 2) -> OpenVLAConfig:
+    """OpenVLA's structure at toy sizes: two small ViTs, the projector, a short Llama with the full vocabulary."""
+    return OpenVLAConfig(
+        featurizer=ViTConfig(
+            embed_dim=32,
+            depth=2,
+            num_heads=2,
+            mlp_hidden=64,
+            class_token=True,
+            reg_tokens=4,
+            layer_scale=True,
+            image_size=image_size,
+        ),
+        fused_featurizer=ViTConfig(
+            embed_dim=32, depth=2, num_heads=2, mlp_hidden=64, map_head=True, image_size=image_size
+        ),
+        text=LlamaDims(
+            hidden_size=hidden_size,
+            intermediate_size=2 * hidden_size,
+            num_hidden_layers=layers,
+            num_attention_heads=2,
+            num_key_value_heads=2,
+        ),
     )
 
 
-def write_small_model(folder: Path, image_size: int = IMAGE, hidden_size: int = 64, seed: int = 0) -> Path:
+def write_small_model(folder: Path, image_size: int = IMAGE, hidden_size: int = 32, seed: int = 0) -> Path:
     """A vlaprobe checkpoint folder of :func:`small_config` with seeded weights."""
     import torch
 
