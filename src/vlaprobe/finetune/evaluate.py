@@ -63,9 +63,10 @@ def validate(
     model.train(was_training)
     pred = np.concatenate(preds)
     label = examples.tokens[rows]
-    decode = lambda t, mask: decode_action(
-        t, stats.q01, stats.q99, mask, cfg.action_vocab_end, cfg.n_action_bins
-    )  # noqa: E731
+
+    def decode(tokens: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        return decode_action(tokens, stats.q01, stats.q99, mask, cfg.action_vocab_end, cfg.n_action_bins)
+
     unmasked = np.zeros_like(stats.mask)
     return Validation(
         loss=loss_sum / len(rows),
