@@ -22,9 +22,10 @@ class FinetuneConfig:
     """Run folder: ``checkpoint/`` (a model folder ``--model`` and ``--policy.model`` load), ``metrics.jsonl``,
     ``finetune.json``. A folder holding a checkpoint of the same run is resumed."""
     model: str = "tiny"
-    """Initial weights: "tiny" (the seeded tiny OpenVLA, ``--model-seed``) or an OpenVLA checkpoint folder."""
+    """Initial weights: a seeded model's name ("tiny", "tiny-libero-init": built from ``--model-seed``), a
+    shipped model's name ("tiny-libero") or an OpenVLA checkpoint folder (official or vlaprobe-written)."""
     model_seed: int = 0
-    """Seed of the tiny model's initial weights (ignored for checkpoint folders)."""
+    """Seed of a seeded model's initial weights (ignored for checkpoint folders)."""
     model_id: str = ""
     """Name written into the checkpoint (``vlaprobe model-info`` shows it). Empty: the --out folder's name."""
     dataset_name: str = "libero_spatial"

@@ -37,13 +37,24 @@ class Initial:
     tokenizer/processor files."""
 
 
+def _folder(model: str) -> Path | None:
+    """The checkpoint folder ``--model`` names (a shipped model's or a path); None for a seeded name."""
+    from vlaprobe.policies.openvla.embedded import SEEDED_MODELS, embedded_folder
+
+    if model in SEEDED_MODELS:
+        return None
+    return embedded_folder(model) or Path(model)
+
+
 def architecture(model: str) -> OpenVLAConfig:
     """The architecture ``--model`` names, read without loading weights (one-line errors for bad folders)."""
-    if model == "tiny":
-        from vlaprobe.policies.openvla.tiny import tiny_config
+    from vlaprobe.policies.openvla.embedded import SEEDED_MODELS
+    from vlaprobe.policies.openvla.tiny import tiny_config
 
-        return tiny_config()
-    return checkpoint.read_config(Path(model))[0]
+    folder = _folder(model)
+    if folder is None:
+        return tiny_config(patch_size=SEEDED_MODELS[model])
+    return checkpoint.read_config(folder)[0]
 
 
 def load_initial(model: str, seed: int, device: str, full_precision: bool) -> Initial:
@@ -52,7 +63,7 @@ def load_initial(model: str, seed: int, device: str, full_precision: bool) -> In
 
     policy = OpenVLAPolicy.load(model, device=device, seed=seed)
     net = policy.model.float() if full_precision else policy.model
-    source = None if model == "tiny" else Path(model)
+    source = _folder(model)
     official = source is not None and not checkpoint.read_config(source)[2]
     return Initial(net, policy.tokenizer, source, official)
 
