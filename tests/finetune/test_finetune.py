@@ -192,3 +192,51 @@ def _lora_targets(folder: Path) -> list[str]:
 def test_gripper_target_is_openvlas(gripper: float, target: float) -> None:
     action = np.array([0.1, 0, 0, 0, 0, 0, gripper])
     assert training_gripper(action)[6] == target
+
+
+def test_lora_on_an_official_checkpoint_folder_keeps_its_layout(shared_dir: Path, tmp_path: Path) -> None:
+    """The path of a real OpenVLA fine-tune: an official folder (Llama tokenizer.json, no "vlaprobe" block)
+    in, LoRA, and an official folder out that our loader (and OpenVLA's own code) reads."""
+    import shutil
+
+    from tests.finetune.helpers import write_demo_store
+    from tokenizers import Tokenizer, models, pre_tokenizers
+
+    from vlaprobe.configs.finetune import FinetuneConfig
+
+    source = tmp_path / "openvla"
+    source.mkdir()
+    for name in ("config.json", "model.safetensors", "tiny_dims.json", "preprocessor_config.json"):
+        shutil.copy(shared_dir / "openvla_reference" / name, source / name)
+    words = ["in", ":", "what", "action", "should", "the", "robot", "take", "to", "put", "bowl", "number", "0", "1", "on", "plate", "?", "out"]
+    tok = Tokenizer(
+        models.WordLevel({"<unk>": 0, "<s>": 1, **{w: 100 + i for i, w in enumerate(words)}}, "<unk>")
+    )
+    tok.pre_tokenizer = pre_tokenizers.Whitespace()
+    tok.save(str(source / "tokenizer.json"))
+    store = write_demo_store(
+        tmp_path / "demos", [(t, i, 3) for t in range(2) for i in range(2)], image_size=224
+    )
+    cfg = FinetuneConfig(
+        stores=(store,),
+        out=tmp_path / "run",
+        model=str(source),
+        lora=True,
+        lora_rank=2,
+        batch_size=2,
+        max_steps=2,
+        warmup_steps=1,
+        threads=1,
+        progress=False,
+        val_fraction=0.5,
+        dataset_name="mine",
+    )
+    assert finetune(cfg) == 0
+    folder = cfg.out / "checkpoint"
+    config = json.loads((folder / "config.json").read_text())
+    assert "vlaprobe" not in config and set(config["norm_stats"]) == {"libero_spatial", "mine"}
+    assert (folder / "tokenizer.json").is_file() and (folder / "tiny_dims.json").is_file()
+    policy = make_policy(PolicyConfig(model=str(folder), device="cpu", unnorm_key="mine"))
+    assert policy.tokenizer.name.startswith("hf:")
+    step = policy.step(np.zeros((64, 64, 3), dtype=np.uint8), "put the bowl number 1 on the plate")
+    assert step.action.shape == (7,)
