@@ -24,7 +24,7 @@ import torch
 
 THREADS = 2
 BATCH = 16
-ROUNDS = 5
+ROUNDS = 3
 MATMUL = 768
 
 

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import asdict
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -126,6 +128,7 @@ def build_trainer(cfg: FinetuneConfig) -> tuple[Trainer, dict[str, Any]]:
 
 def finetune(cfg: FinetuneConfig) -> int:
     """Fine-tune, checkpoint, and print where the model is; returns the exit status."""
+    cfg = dataclasses.replace(cfg, stores=tuple(Path(p) for p in cfg.stores), out=Path(cfg.out))
     trainer, info = build_trainer(cfg)
     out = cfg.out
     out.mkdir(parents=True, exist_ok=True)
