@@ -18,7 +18,13 @@ from vlaprobe.files import write_atomic
 from vlaprobe.finetune import lora as lora_mod
 from vlaprobe.finetune import model_io
 from vlaprobe.finetune.checks import check_finetune, check_run_folder
-from vlaprobe.finetune.data import dataset_statistics, load_demonstrations, split_episodes
+from vlaprobe.finetune.data import (
+    Demonstrations,
+    Split,
+    dataset_statistics,
+    load_demonstrations,
+    split_episodes,
+)
 from vlaprobe.finetune.examples import ActionStats, cache_features, majority_accuracy, make_examples
 from vlaprobe.finetune.loop import Trainer, make_schedule
 from vlaprobe.finetune.state import (
@@ -45,6 +51,37 @@ def _check_same_data(cfg: FinetuneConfig, norm_stats: dict[str, Any]) -> None:
         )
 
 
+def _data(cfg: FinetuneConfig, image_size: int) -> tuple[Demonstrations, Split, dict[str, Any]]:
+    """The demonstrations, their split and the training split's statistics (``norm_stats``)."""
+    demos = load_demonstrations(
+        cfg.stores, image_size, cfg.success_only, cfg.skip_post_success, cfg.drop_noops
+    )
+    split = split_episodes(demos, cfg.val_fraction, cfg.seed, cfg.val_max_samples)
+    if len(split.train) < cfg.batch_size:
+        raise VlaprobeError(
+            f"the training split has {len(split.train)} rows, fewer than --batch-size {cfg.batch_size}; "
+            "lower --batch-size or collect more episodes"
+        )
+    return demos, split, {cfg.dataset_name: dataset_statistics(demos, split.train, len(split.train_episodes))}
+
+
+def _restore(
+    cfg: FinetuneConfig,
+    model: torch.nn.Module,
+    optimizer: torch.optim.Optimizer,
+    lora: bool,
+    device: torch.device,
+) -> tuple[TrainState, list[dict[str, Any]]]:
+    """Weights (or the adapter), optimizer, state and metric records of the checkpoint in ``--out``."""
+    state = read_train_state(cfg.out) or TrainState()
+    if lora:
+        lora_mod.load_adapter(model, {k: v.to(device) for k, v in read_adapter(cfg.out).items()})
+    else:
+        model_io.load_weights(model, cfg.out / CHECKPOINT)
+    load_optimizer(cfg.out, optimizer, device)
+    return state, read_metrics(cfg.out, state.step)
+
+
 def build_trainer(cfg: FinetuneConfig) -> tuple[Trainer, dict[str, Any]]:
     """Everything up to the first step; every input problem is a one-line error before any training."""
     from vlaprobe import devices
@@ -58,16 +95,7 @@ def build_trainer(cfg: FinetuneConfig) -> tuple[Trainer, dict[str, Any]]:
     resuming = check_run_folder(cfg, arch)
     if cfg.threads is not None:
         torch.set_num_threads(cfg.threads)
-    demos = load_demonstrations(
-        cfg.stores, arch.featurizer.image_size, cfg.success_only, cfg.skip_post_success, cfg.drop_noops
-    )
-    split = split_episodes(demos, cfg.val_fraction, cfg.seed, cfg.val_max_samples)
-    if len(split.train) < cfg.batch_size:
-        raise VlaprobeError(
-            f"the training split has {len(split.train)} rows, fewer than --batch-size {cfg.batch_size}; "
-            "lower --batch-size or collect more episodes"
-        )
-    norm_stats = {cfg.dataset_name: dataset_statistics(demos, split.train, len(split.train_episodes))}
+    demos, split, norm_stats = _data(cfg, arch.featurizer.image_size)
     if resuming:
         _check_same_data(cfg, norm_stats)
     stats = _stats_of(norm_stats, cfg.dataset_name)
@@ -84,15 +112,9 @@ def build_trainer(cfg: FinetuneConfig) -> tuple[Trainer, dict[str, Any]]:
     # fused: one kernel over all tensors (5x faster than the per-tensor loop on the CPU, same arithmetic per step)
     optimizer = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay, fused=True)
     schedule = make_schedule(cfg, len(split.train))
-    state, records = TrainState(), []
-    if resuming:
-        state = read_train_state(cfg.out) or TrainState()
-        if lora_config is not None:
-            lora_mod.load_adapter(model, {k: v.to(device) for k, v in read_adapter(cfg.out).items()})
-        else:
-            model_io.load_weights(model, cfg.out / CHECKPOINT)
-        load_optimizer(cfg.out, optimizer, device)
-        records = read_metrics(cfg.out, state.step)
+    state, records = (
+        _restore(cfg, model, optimizer, lora_config is not None, device) if resuming else (TrainState(), [])
+    )
     info = {
         "train_rows": len(split.train),
         "val_rows": len(split.val),
