@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -72,11 +72,13 @@ class Trainer:
     records: list[dict[str, Any]]
     """Metric records so far (those of a resumed checkpoint first)."""
     state: TrainState
+    _epoch: int = field(default=-1, init=False)
+    _order: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64), init=False)
 
     def rows(self, step: int) -> np.ndarray:
         """The training rows of optimizer step ``step``: one slice of its epoch's seeded permutation."""
         epoch, index = divmod(step, self.schedule.steps_per_epoch)
-        if getattr(self, "_epoch", None) != epoch:
+        if self._epoch != epoch:
             self._epoch = epoch
             self._order = self.split.train[
                 np.random.default_rng([self.cfg.seed, epoch]).permutation(len(self.split.train))
