@@ -167,6 +167,9 @@ def test_train_options_out_of_range(
         (["run", "--collect.tasks", "0", "99"], "--collect.tasks [99] do not exist"),
         (["run", "--train.split.folds", "31"], "--train.split.folds 31 needs at least that many episodes"),
         (["run", "--report.dpi", "-5"], "--report.dpi must be"),
+        (["collect", "--first-init", "-1"], "--first-init must be at least 0"),
+        (["save-tiny", "--patch-size", "13"], "--patch-size must divide the 224 px image"),
+        (["run", "--control-model", "tiny", "--pooling", "action_tokens"], "--control-model needs"),
     ],
 )
 def test_collect_report_run_options_out_of_range(
