@@ -9,7 +9,8 @@ plain ``LlamaForCausalLM`` forward with labels computes), (2) the step with froz
 (``--freeze-vision``) and (3) a square float32 matmul whose rate is this CPU's matmul peak at the same
 thread count, so a slow spell of the shared machine hits all of them alike. The step's FLOPs come from
 torch's ``FlopCounterMode`` (matmuls, convolutions and attention, forward and backward); ``share_of_peak``
-= achieved GFLOP/s ÷ matmul peak. Prints a final JSON line.
+= achieved GFLOP/s ÷ matmul peak. One torch thread: on a shared machine OpenMP threads spin against the other
+jobs (two threads ran ~4x slower than one on the loaded 2-core box). Prints a final JSON line.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-THREADS = 2
+THREADS = 1
 BATCH = 16
 ROUNDS = 3
 MATMUL = 768

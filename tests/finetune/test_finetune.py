@@ -208,7 +208,26 @@ def test_lora_on_an_official_checkpoint_folder_keeps_its_layout(shared_dir: Path
     source.mkdir()
     for name in ("config.json", "model.safetensors", "tiny_dims.json", "preprocessor_config.json"):
         shutil.copy(shared_dir / "openvla_reference" / name, source / name)
-    words = ["in", ":", "what", "action", "should", "the", "robot", "take", "to", "put", "bowl", "number", "0", "1", "on", "plate", "?", "out"]
+    words = [
+        "in",
+        ":",
+        "what",
+        "action",
+        "should",
+        "the",
+        "robot",
+        "take",
+        "to",
+        "put",
+        "bowl",
+        "number",
+        "0",
+        "1",
+        "on",
+        "plate",
+        "?",
+        "out",
+    ]
     tok = Tokenizer(
         models.WordLevel({"<unk>": 0, "<s>": 1, **{w: 100 + i for i, w in enumerate(words)}}, "<unk>")
     )
@@ -236,6 +255,7 @@ def test_lora_on_an_official_checkpoint_folder_keeps_its_layout(shared_dir: Path
     config = json.loads((folder / "config.json").read_text())
     assert "vlaprobe" not in config and set(config["norm_stats"]) == {"libero_spatial", "mine"}
     assert (folder / "tokenizer.json").is_file() and (folder / "tiny_dims.json").is_file()
+    assert {v.dtype for v in weights(cfg.out).values()} == {torch.bfloat16}  # the source's torch_dtype
     policy = make_policy(PolicyConfig(model=str(folder), device="cpu", unnorm_key="mine"))
     assert policy.tokenizer.name.startswith("hf:")
     step = policy.step(np.zeros((64, 64, 3), dtype=np.uint8), "put the bowl number 1 on the plate")

@@ -136,6 +136,7 @@ def build_trainer(cfg: FinetuneConfig) -> tuple[Trainer, dict[str, Any]]:
         norm_stats,
         model_id,
         lambda: {"step": trainer.state.step, "dataset_name": cfg.dataset_name},
+        merged=cfg.lora,
     )
     adapter = (
         (lambda: (lora_mod.adapter_state_dict(model), lora_mod.adapter_config_json(lora_config)))

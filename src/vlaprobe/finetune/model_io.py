@@ -68,14 +68,23 @@ def load_initial(model: str, seed: int, device: str, full_precision: bool) -> In
     return Initial(net, policy.tokenizer, source, official)
 
 
+DTYPES = {"bfloat16": torch.bfloat16, "float16": torch.float16, "float32": torch.float32}
+"""config.json ``torch_dtype`` values a merged LoRA checkpoint is stored in."""
+
+
 def _write_official(
-    folder: Path, source: Path, state: dict[str, torch.Tensor], norm_stats: dict[str, Any]
+    folder: Path, source: Path, state: dict[str, torch.Tensor], norm_stats: dict[str, Any], merged: bool
 ) -> None:
     from safetensors.torch import save_file
 
     raw = json.loads((source / "config.json").read_text())
     raw["norm_stats"] = {**(raw.get("norm_stats") or {}), **norm_stats}
-    tensors = {k: v.detach().to("cpu").contiguous() for k, v in state.items()}
+    # merged LoRA weights go back in the source's dtype (bf16 for OpenVLA: 15 GB, not 30); a full fine-tune
+    # keeps float32 so that resuming from the checkpoint is exact
+    dtype = DTYPES.get(str(raw.get("torch_dtype")), torch.float32) if merged else torch.float32
+    if not merged:
+        raw["torch_dtype"] = "float32"
+    tensors = {k: v.detach().to("cpu", dtype).contiguous() for k, v in state.items()}
     write_atomic(folder / "model.safetensors", lambda p: save_file(tensors, p, metadata={"format": "pt"}))
     write_atomic(folder / "config.json", json.dumps(raw, indent=2) + "\n")
     for path in sorted(source.iterdir()):
@@ -93,8 +102,10 @@ def model_writer(
     norm_stats: dict[str, Any],
     model_id: str,
     info: Callable[[], dict[str, Any]],
+    merged: bool = False,
 ) -> Callable[[Path], None]:
-    """A function that writes the current weights (``state()``) as a model folder into a given folder.
+    """A function that writes the current weights (``state()``) as a model folder into a given folder;
+    ``merged``: LoRA-merged weights (an official folder stores them in its own dtype).
 
     vlaprobe's own models keep the "vlaprobe" block (architecture, tokenizer, ``model_id``, and ``info()``
     under "finetune"); official ones keep their config.json with the new statistics merged into
@@ -105,7 +116,7 @@ def model_writer(
     def write(folder: Path) -> None:
         if init.official:
             assert init.source is not None
-            _write_official(folder, init.source, state(), norm_stats)
+            _write_official(folder, init.source, state(), norm_stats, merged)
         else:
             extra = {
                 "tokenizer": WordHashTokenizer.name,
