@@ -171,6 +171,9 @@ def test_train_options_out_of_range(
         (["run", "--collect.tasks", "0", "99"], "--collect.tasks [99] do not exist"),
         (["run", "--train.split.folds", "31"], "--train.split.folds 31 needs at least that many episodes"),
         (["run", "--report.dpi", "-5"], "--report.dpi must be"),
+        (["collect", "--first-init", "-1"], "--first-init must be at least 0"),
+        (["save-tiny", "--patch-size", "13"], "--patch-size must divide the 224 px image"),
+        (["run", "--control-model", "tiny", "--pooling", "action_tokens"], "--control-model needs"),
     ],
 )
 def test_collect_report_run_options_out_of_range(
@@ -515,3 +518,108 @@ def test_leave_one_task_out_needs_two_tasks(store: Path, capsys: pytest.CaptureF
     write(one_task, [(0, 0, 6), (0, 1, 5), (0, 2, 6)])
     err = one_line_error(capsys, ["train", "--store", str(one_task), "--split", "leave-one-task-out"])
     assert "--split leave-one-task-out needs episodes of at least 2 tasks" in err
+
+
+# ----- vlaprobe finetune (issue #17): refused in one line before any training ----------------------------
+@pytest.fixture(scope="module")
+def finetune_inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    from tests.finetune.helpers import write_demo_store, write_small_model
+
+    root = tmp_path_factory.mktemp("finetune")
+    return {
+        "model": write_small_model(root / "model"),
+        "wide_model": write_small_model(root / "wide", hidden_size=48),
+        "store": write_demo_store(root / "demos", [(t, i, 6) for t in range(2) for i in range(3)]),
+        "single": write_demo_store(root / "single", [(0, 0, 6), (1, 0, 6)]),
+        "no_images": write_demo_store(root / "no_images", [(0, 0, 6), (0, 1, 6)], images=False),
+    }
+
+
+def _finetune_argv(inputs: dict[str, Path], out: Path, *extra: str, store: str = "store") -> list[str]:
+    return [
+        "finetune",
+        "--stores",
+        str(inputs[store]),
+        "--model",
+        str(inputs["model"]),
+        "--out",
+        str(out),
+        *extra,
+    ]
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--lr", "0"], "--lr must be a number above 0 and at most 1, got 0.0"),
+        (["--lr", "nan"], "--lr must be a number above 0"),
+        (["--lr", "30"], "--lr must be a number above 0 and at most 1, got 30.0"),
+        (["--batch-size", "0"], "--batch-size must be at least 1, got 0"),
+        (["--epochs", "0"], "--epochs must be at least 1, got 0"),
+        (["--max-steps", "-3"], "--max-steps must be at least 1"),
+        (["--val-fraction", "1"], "--val-fraction must be between 0 and 1"),
+        (["--augment", "--freeze-vision"], "--augment needs the featurisers"),
+        (["--batch-size", "64"], "fewer than --batch-size 64"),
+    ],
+)
+def test_finetune_refuses_bad_settings(
+    finetune_inputs: dict[str, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    extra: list[str],
+    message: str,
+) -> None:
+    err = one_line_error(capsys, _finetune_argv(finetune_inputs, tmp_path / "out", *extra))
+    assert message in err
+    assert not (tmp_path / "out" / "checkpoint").exists()
+
+
+@pytest.mark.parametrize(
+    "store, message",
+    [
+        ("no_images", "has no images or actions"),
+        ("single", "the validation split is empty"),
+    ],
+)
+def test_finetune_refuses_stores_it_cannot_train_on(
+    finetune_inputs: dict[str, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    store: str,
+    message: str,
+) -> None:
+    err = one_line_error(capsys, _finetune_argv(finetune_inputs, tmp_path / "out", store=store))
+    assert message in err
+
+
+def test_finetune_refuses_a_store_of_another_image_size(
+    store: Path, finetune_inputs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = [
+        "finetune",
+        "--stores",
+        str(store),
+        "--model",
+        str(finetune_inputs["model"]),
+        "--out",
+        str(tmp_path / "o"),
+    ]
+    assert "holds images of shape [8, 8, 3], the model takes 28x28x3" in one_line_error(capsys, argv)
+
+
+def test_finetune_refuses_to_resume_another_shape_or_other_settings(
+    finetune_inputs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "out"
+    argv = _finetune_argv(finetune_inputs, out, "--max-steps", "1", "--batch-size", "4", "--threads", "1")
+    assert main([*argv, "--no-progress"]) == 0
+    capsys.readouterr()
+    wide = [*argv[:4], str(finetune_inputs["wide_model"]), *argv[5:]]
+    assert "holds a checkpoint of another model shape (text.hidden_size 32 vs 48)" in one_line_error(
+        capsys, wide
+    )
+    assert "holds a run with other settings (lr 0.0005 vs 0.001)" in one_line_error(
+        capsys, [*argv, "--lr", "1e-3"]
+    )
+    (out / "notes.txt").write_text("mine")
+    assert "holds other files (notes.txt)" in one_line_error(capsys, argv)

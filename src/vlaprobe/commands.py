@@ -48,6 +48,7 @@ COMMANDS: dict[str, Command] = {
     "monitor": Command("vlaprobe.configs.monitor:MonitorConfig", "vlaprobe.cognition.monitor:main", "Run the cognition (beliefs, rules, subgoals) on stored episodes: truth vs probe predictions."),
     "model-info": Command("vlaprobe.configs.policy:ModelInfoConfig", "vlaprobe.policies.openvla.commands:model_info", "Load a VLA policy and print its description (with --step: one timed step) as JSON."),
     "serve": Command("vlaprobe.configs.serve:ServeConfig", "vlaprobe.live.serve:main", "Live monitor: stream episodes (simulator, model, probes, cognition) over a WebSocket; record and replay."),
+    "finetune": Command("vlaprobe.configs.finetune:FinetuneConfig", "vlaprobe.finetune.command:finetune", "Fine-tune an OpenVLA model (tiny or a checkpoint) on collected expert episodes with OpenVLA's objective."),
     "save-tiny": Command("vlaprobe.configs.policy:SaveTinyConfig", "vlaprobe.policies.openvla.commands:save_tiny", "Write the seeded tiny OpenVLA as a checkpoint folder (config.json + model.safetensors)."),
 }  # fmt: skip
 """Every subcommand by name, in ``vlaprobe --help`` order."""

@@ -18,13 +18,28 @@ def stage_configs(cfg: RunConfig) -> RunConfig:
     """The run's config with every stage's paths pointed into ``cfg.out``."""
     out = Path(cfg.out)
     store, probes, report = out / "activations", out / "probes", out / "report"
+    control = control_store(cfg) if cfg.control_model else None
     return dataclasses.replace(
         cfg,
         collect=dataclasses.replace(cfg.collect, out=store),
-        train=dataclasses.replace(cfg.train, store=store, out=probes),
+        train=dataclasses.replace(cfg.train, store=store, out=probes, observer_store=control),
         monitor=dataclasses.replace(cfg.monitor, store=store, probes=probes, out=None, json=False),
         report=dataclasses.replace(cfg.report, probes=probes, out=report),
     )
+
+
+def control_store(cfg: RunConfig) -> Path:
+    """Where the control observer's copy of the run's episodes goes."""
+    return Path(cfg.out) / "control" / "activations"
+
+
+def _observe_control(cfg: RunConfig) -> None:
+    """The control observer's hidden states on the collected episodes (resumes like collection)."""
+    from vlaprobe.collection.reobserve import reobserve
+
+    policy = dataclasses.replace(cfg.collect.policy, model=cfg.control_model)
+    added = reobserve(cfg.collect.out, control_store(cfg), policy)
+    print(f"      control observer {cfg.control_model}: {len(added)} episodes re-observed", flush=True)
 
 
 def _save_config(cfg: RunConfig) -> Path:
@@ -49,6 +64,8 @@ def run(cfg: RunConfig) -> Path:
     print(f"[1/4] collect → {cfg.collect.out}", flush=True)
     t0 = time.perf_counter()
     collect(cfg.collect)
+    if cfg.control_model:
+        _observe_control(cfg)
     t1 = time.perf_counter()
     print(f"[2/4] train → {cfg.train.out}", flush=True)
     train_probes(cfg.train)

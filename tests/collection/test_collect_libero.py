@@ -36,7 +36,7 @@ collect(tyro.cli(CollectConfig, args=sys.argv[1:]))
 
 def test_expert_episode_labels_match_detectors_on_stored_states(tmp_path: Path) -> None:
     cfg = CollectConfig(
-        out=tmp_path / "store", tasks=(0,), episodes_per_task=1, policy=PolicyConfig(device="cpu"), progress=False,
+        out=tmp_path / "store", tasks=(0,), episodes_per_task=1, policy=PolicyConfig(model="tiny", device="cpu"), progress=False,
         env=EnvConfig(image_size=128),
     )  # fmt: skip
     result = collect(cfg)

@@ -58,7 +58,7 @@ def test_the_comparison_can_fail(tmp_path: Path) -> None:
 def test_libero_store_is_identical_to_the_one_before_the_refactor(tmp_path: Path) -> None:
     # The fingerprint's settings: task 0, one successful episode, the tiny model on 1 CPU thread.
     cfg = CollectConfig(
-        out=tmp_path / "store", tasks=(0,), episodes_per_task=1, policy=PolicyConfig(device="cpu"),
+        out=tmp_path / "store", tasks=(0,), episodes_per_task=1, policy=PolicyConfig(model="tiny", device="cpu"),
         progress=False, threads=1, post_success_steps=0, env=EnvConfig(image_size=128),
     )  # fmt: skip
     collect(cfg)

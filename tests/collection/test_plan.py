@@ -113,3 +113,17 @@ def test_resume_skips_stored_units_and_honours_the_budget() -> None:
     plan.finished(unit, False)
     assert plan.next_unit() is None and plan.complete()
     assert plan.exhausted(0) and not plan.exhausted(1)
+
+
+def test_first_init_skips_the_held_out_init_states() -> None:
+    """--first-init 10: init states 0-9 are never tried nor counted; the budget counts from 10."""
+    known = {(0, 3): True, (0, 10): True, (0, 11): False}  # (0, 3) lies outside the span: ignored
+    plan = Plan([0], per_task=3, budget=4, known=known, first=10)
+    assert plan.kept(0) == (1, 2)
+    order = []
+    while (unit := plan.next_unit()) is not None:
+        plan.started(unit)
+        plan.finished(unit, unit.init != 12)
+        order.append(unit.init)
+    assert order == [12, 13] and plan.complete()
+    assert plan.kept(0) == (2, 4) and plan.exhausted(0)  # init 14 is past the budget of 4

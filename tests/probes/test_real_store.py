@@ -151,7 +151,7 @@ def real_store(tmp_path_factory: pytest.TempPathFactory) -> Path:
         episodes_per_task=2,
         max_tries_per_task=2,
         keep_failed=True,
-        policy=PolicyConfig(device="cpu"),
+        policy=PolicyConfig(model="tiny", device="cpu"),
         progress=False,
         env=EnvConfig(image_size=128, max_steps=40),
     )

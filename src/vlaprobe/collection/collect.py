@@ -183,8 +183,14 @@ def collect(cfg: CollectConfig, make_worker: MakeWorker = Worker) -> CollectResu
         }
         writer.update_meta(runs=[*writer.meta.get("runs", []), run])
         known = {(e.task, e.init): e.success for e in writer.outcomes().values() if e.attempt == 0}
-        budget = min(cfg.max_tries_per_task or desc.num_init_states, desc.num_init_states)
-        plan = Plan(tasks, cfg.episodes_per_task, budget, known)
+        left = desc.num_init_states - cfg.first_init
+        if left < 1:
+            raise VlaprobeError(
+                f"--first-init {cfg.first_init} leaves no init state; the tasks have {desc.num_init_states} "
+                f"(0-{desc.num_init_states - 1})"
+            )
+        budget = min(cfg.max_tries_per_task or left, left)
+        plan = Plan(tasks, cfg.episodes_per_task, budget, known, first=cfg.first_init)
         progress = _Progress(cfg, plan)
         result = CollectResult(out, {}, [])
         _loop(cfg, executor, writer, plan, progress, result)

@@ -1,7 +1,8 @@
 """Which episodes to run and which to keep, so that the result never depends on workers or interruptions.
 
 The serial rule defines the result: for each task, try init states 0, 1, 2, ... (attempt 0 each) in order,
-stop after ``per_task`` successes or when the try budget (init states ``0..budget-1``) is spent. A unit's
+stop after ``per_task`` successes or when the try budget (init states ``0..budget-1``) is spent (with ``first``,
+the init states ``first..first+budget-1``: the ones before are held out, e.g. for a closed-loop evaluation). A unit's
 outcome depends only on (task, init) (fixed init state, seed derived from it), so the set of tried units —
 the *serial prefix* of each task — is a function of the outcomes alone.
 
@@ -47,38 +48,46 @@ class Plan:
     """The deterministic schedule of a collection run (pure bookkeeping: no simulator, no store)."""
 
     def __init__(
-        self, tasks: Sequence[int], per_task: int, budget: int, known: Mapping[tuple[int, int], bool]
+        self,
+        tasks: Sequence[int],
+        per_task: int,
+        budget: int,
+        known: Mapping[tuple[int, int], bool],
+        first: int = 0,
     ) -> None:
-        """``known``: (task, init) -> success of the units the store already holds (episodes and failure marks)."""
+        """``known``: (task, init) -> success of the units the store already holds (episodes and failure marks).
+        ``first``: the first init state tried; the budget counts from it."""
         self.tasks = list(tasks)
         self.per_task = per_task
         self.budget = budget
+        self.first = first
         self._t = {t: _Task() for t in self.tasks}
         for (t, i), success in known.items():
-            if t in self._t and i < budget:
+            if t in self._t and first <= i < first + budget:
                 self._t[t].outcome[i] = success
         for t in self.tasks:
             self._t[t].kept = {i for i in self._t[t].outcome if self._status(t, i) == "in"}
 
     # ----- the rule --------------------------------------------------------------------------------------------
     def _before(self, t: int, i: int) -> tuple[int, int]:
-        """(known successes, unresolved units) among init states 0..i-1 of task t."""
+        """(known successes, unresolved units) among init states first..i-1 of task t."""
         outcome = self._t[t].outcome
         successes = sum(1 for j, ok in outcome.items() if j < i and ok)
-        unresolved = sum(1 for j in range(i) if j not in outcome)
+        unresolved = sum(1 for j in range(self.first, i) if j not in outcome)
         return successes, unresolved
 
     def _status(self, t: int, i: int) -> str:
         """'in' / 'out' of task t's serial prefix, or 'open' while earlier outcomes could still decide it."""
         successes, unresolved = self._before(t, i)
-        if successes >= self.per_task or i >= self.budget:
+        if successes >= self.per_task or not self.first <= i < self.first + self.budget:
             return "out"
         return "in" if successes + unresolved < self.per_task else "open"
 
     def _candidate(self, t: int) -> int | None:
         """The lowest init state of task t not yet run, running or stored; None when there is nothing to try."""
         s = self._t[t]
-        i = next((i for i in range(self.budget) if i not in s.outcome and i not in s.running), None)
+        span = range(self.first, self.first + self.budget)
+        i = next((i for i in span if i not in s.outcome and i not in s.running), None)
         return i if i is not None and self._status(t, i) != "out" else None
 
     # ----- driving it ------------------------------------------------------------------------------------------

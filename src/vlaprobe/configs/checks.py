@@ -7,6 +7,7 @@ prefix except in ``model-info`` (``--seed``, ``--model``).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from pathlib import Path
@@ -174,7 +175,9 @@ def check_step_budget(
 def check_policy(policy: PolicyConfig, prefix: str = "") -> None:
     """The policy's flags (unprefixed everywhere but ``model-info``: ``--policy.seed``)."""
     if not policy.model:
-        raise VlaprobeError(f"{_flag(prefix, 'model')} needs 'tiny' or an OpenVLA checkpoint folder, got ''")
+        raise VlaprobeError(
+            f"{_flag(prefix, 'model')} needs 'tiny-libero', 'tiny' or an OpenVLA checkpoint folder, got ''"
+        )
     check_seed(policy.seed, _flag(prefix, "seed"))
 
 
@@ -215,6 +218,7 @@ def check_collect(cfg: CollectConfig, prefix: str = "") -> None:
     _at_least(cfg.episodes_per_task, 1, f("episodes_per_task"))
     _at_least(cfg.workers, 1, f("workers"))
     _at_least(cfg.max_tries_per_task, 1, f("max_tries_per_task"))
+    _at_least(cfg.first_init, 0, f("first_init"))
     _at_least(cfg.post_success_steps, 0, f("post_success_steps"))
     _at_least(cfg.threads, 1, f("threads"), " (or leave it out for the default)")
     check_tasks(cfg.tasks, cfg.env.suite, f("tasks"))
@@ -296,6 +300,12 @@ def check_run(cfg: RunConfig) -> None:
     check_collect(cfg.collect, "collect.")
     check_train(cfg.train, "train.")
     check_report(cfg.report, "report.")
+    if cfg.control_model:
+        check_policy(dataclasses.replace(cfg.collect.policy, model=cfg.control_model), "control-")
+        if cfg.collect.policy.pooling == "action_tokens":
+            raise VlaprobeError(
+                '--control-model needs a prompt-pass pooling (not "action_tokens"); pass --control-model "" to skip it'
+            )
     c = cfg.collect
     if c.episodes_per_task < 2 and not c.keep_failed:
         raise VlaprobeError(

@@ -29,8 +29,11 @@ class CollectConfig:
     episodes_per_task: int = 5
     """Successful episodes to keep per task (the paper kept 5)."""
     max_tries_per_task: int | None = None
-    """Try budget: init states 0..K-1 are tried in order until enough succeed. Default: all init states (50).
-    A task that runs out is reported, not an error."""
+    """Try budget: init states 0..K-1 (from --first-init on) are tried in order until enough succeed. Default:
+    all init states (50) from --first-init. A task that runs out is reported, not an error."""
+    first_init: int = 0
+    """First init state tried; the ones before it are never run (e.g. --first-init 10 collects demonstrations
+    that leave init states 0-9 of every task held out for a closed-loop evaluation)."""
     post_success_steps: int = 10
     """Rows recorded after the first observation where the task succeeds (the expert releases the object and
     lifts the arm; the model keeps observing). 0 ends an episode on its success observation, so the goal

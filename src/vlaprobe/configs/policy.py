@@ -11,9 +11,11 @@ from typing import Literal
 class PolicyConfig:
     """Which VLA model to run and how to read its hidden states."""
 
-    model: str = "tiny"
-    """"tiny" (the embedded seeded tiny OpenVLA, no download) or an OpenVLA checkpoint folder (official HF
-    layout: config.json, *.safetensors, dataset_statistics.json, tokenizer.json)."""
+    model: str = "tiny-libero"
+    """"tiny-libero" (the shipped tiny OpenVLA trained on LIBERO-spatial expert demonstrations, the default),
+    "tiny-libero-init" (its network before training: seeded random weights, the control observer), "tiny" (the
+    random tiny model with OpenVLA's 256 patches), or an OpenVLA checkpoint folder (official HF layout:
+    config.json, *.safetensors, dataset_statistics.json, tokenizer.json)."""
     pooling: Literal["last_prompt", "mean_text", "mean_all", "action_tokens"] = "last_prompt"
     """Hidden state per layer: the last prompt position (the paper's choice), the mean over text or all
     prompt positions, or the 7 positions that choose the action tokens."""
@@ -49,3 +51,6 @@ class SaveTinyConfig:
     """Folder to write (config.json + model.safetensors); load it back with --policy.model OUT."""
     seed: int = 0
     """Seed of the weights."""
+    patch_size: int = 14
+    """ViT patch side in pixels of the 224 px image: 14 (256 patches, OpenVLA's and `tiny`'s) or 28 (64 patches,
+    the shape of the trained `tiny-libero`; its initial weights: `save-tiny --patch-size 28`)."""

@@ -16,8 +16,9 @@ class ServeConfig:
 
     probes: Path = Path("runs/default/probes")
     """Probe folder written by ``vlaprobe train`` (or ``vlaprobe run``)."""
-    model: str = "tiny"
-    """The observed model: "tiny" or an OpenVLA checkpoint folder; must be the one the probes were trained on."""
+    model: str = "tiny-libero"
+    """The observed model: "tiny-libero" (the shipped trained tiny model), "tiny" (random weights) or an OpenVLA
+    checkpoint folder; must be the one the probes were trained on."""
     device: str = "auto"
     """Torch device of the model: "auto", "cpu", "cuda" or "cuda:N"."""
     store: Path | None = None

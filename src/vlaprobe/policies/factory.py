@@ -15,8 +15,9 @@ from vlaprobe.policies.base import Pooling, VLAPolicy
 def make_policy(cfg: PolicyConfig) -> VLAPolicy:
     """The policy ``cfg`` describes.
 
-    ``cfg.model``: "tiny" for the embedded tiny OpenVLA built deterministically from ``cfg.seed`` (no file
-    needed), else a checkpoint folder: an official OpenVLA one (config.json, *.safetensors shards (+ index),
+    ``cfg.model``: "tiny" for the tiny OpenVLA with random weights built deterministically from ``cfg.seed`` (no
+    file needed), a shipped model's name ("tiny-libero", the trained default:
+    :mod:`vlaprobe.policies.openvla.embedded`), else a checkpoint folder: an official OpenVLA one (config.json, *.safetensors shards (+ index),
     dataset_statistics.json or norm_stats in config.json, tokenizer.json) or one written by
     ``OpenVLAPolicy.save_pretrained``. See :class:`~vlaprobe.configs.policy.PolicyConfig` for the rest.
     """

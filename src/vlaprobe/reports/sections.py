@@ -31,6 +31,7 @@ class Section:
 
 
 SECTION_PROVIDERS: list[str] = [
+    "vlaprobe.reports.compare:report_section",
     "vlaprobe.cognition.monitor:report_section",
     "vlaprobe.collection.diversity:report_section",
     "vlaprobe.probes.hypotheses_run:report_section",

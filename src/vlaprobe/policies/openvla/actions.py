@@ -71,6 +71,30 @@ def decode_action(
     return np.where(mask, 0.5 * (normalized + 1) * (q99 - q01) + q01, normalized)
 
 
+def normalize_action(action: np.ndarray, q01: np.ndarray, q99: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """OpenVLA's ``BOUNDS_Q99`` normalisation of (..., 7) actions: ``clip(2(a − q01)/(q99 − q01 + 1e-8) − 1,
+    −1, 1)`` where ``mask`` is true; the other dimensions (the gripper) pass through unchanged. float64."""
+    a = np.asarray(action, dtype=np.float64)
+    scaled = np.clip(2 * (a - q01) / (q99 - q01 + 1e-8) - 1, -1, 1)
+    return np.where(mask, scaled, a)
+
+
+def encode_action(normalized: np.ndarray, vocab_end: int = 32000, n_action_bins: int = 256) -> np.ndarray:
+    """prismatic's ``ActionTokenizer``: normalised (..., 7) actions → token ids ``vocab_end − digitize(clip(a,
+    −1, 1), linspace(−1, 1, n_action_bins))`` (int64), the inverse of :func:`decode_action`'s binning."""
+    bins = np.linspace(-1, 1, n_action_bins)
+    return vocab_end - np.digitize(np.clip(normalized, -1, 1), bins).astype(np.int64)
+
+
+def training_gripper(libero_action: np.ndarray) -> np.ndarray:
+    """LIBERO's executed action (gripper −1 open, +1 close) → OpenVLA's training target on a copy, as its
+    ``libero_dataset_transform`` does: gripper g → 1 − clip(g, 0, 1) (1 open, 0 closed). Inverse of
+    :func:`libero_gripper` on ±1."""
+    out = np.array(libero_action, dtype=np.float64, copy=True)
+    out[..., -1] = 1 - np.clip(out[..., -1], 0, 1)
+    return out
+
+
 def libero_gripper(action: np.ndarray) -> np.ndarray:
     """OpenVLA's LIBERO gripper post-processing on a copy: g → −sign(2g − 1) (−1 open, +1 close)."""
     out = np.array(action, dtype=np.float64, copy=True)

@@ -168,12 +168,21 @@ def build_model(
     return model.eval()
 
 
-def save_checkpoint(folder: Path, model: OpenVLA, norm_stats: dict[str, Any], extra: dict[str, Any]) -> None:
-    """Write ``config.json`` (official fields + "vlaprobe" block) and ``model.safetensors`` (float32)."""
+def save_checkpoint(
+    folder: Path,
+    model: OpenVLA,
+    norm_stats: dict[str, Any],
+    extra: dict[str, Any],
+    state: dict[str, torch.Tensor] | None = None,
+) -> None:
+    """Write ``config.json`` (official fields + "vlaprobe" block) and ``model.safetensors`` (float32): the
+    model's own weights, or ``state`` (same names and shapes, e.g. LoRA-merged weights) when given."""
     from safetensors.torch import save_file
 
     folder.mkdir(parents=True, exist_ok=True)
-    state = {k: v.detach().to("cpu", torch.float32).contiguous() for k, v in model.state_dict().items()}
+    if state is None:
+        state = model.state_dict()
+    state = {k: v.detach().to("cpu", torch.float32).contiguous() for k, v in state.items()}
     config = to_official(model.config, norm_stats)
     config["vlaprobe"] = {"format_version": FORMAT_VERSION, "architecture": model.config.to_dict(), **extra}
     write_atomic(folder / "model.safetensors", lambda p: save_file(state, p, metadata={"format": "pt"}))

@@ -40,9 +40,13 @@ def save_tiny(cfg: SaveTinyConfig) -> int:
     from vlaprobe.policies.openvla.policy import OpenVLAPolicy
 
     check_seed(cfg.seed, "--seed")
+    if cfg.patch_size < 1 or 224 % cfg.patch_size:
+        raise VlaprobeError(
+            f"--patch-size must divide the 224 px image (e.g. 14 or 28), got {cfg.patch_size}"
+        )
     check_checkpoint_folder(cfg.out)
-    OpenVLAPolicy.tiny(seed=cfg.seed, device="cpu").save_pretrained(cfg.out)
-    print(f"wrote tiny OpenVLA (seed {cfg.seed}) to {cfg.out}")
+    OpenVLAPolicy.tiny(seed=cfg.seed, device="cpu", patch_size=cfg.patch_size).save_pretrained(cfg.out)
+    print(f"wrote tiny OpenVLA (seed {cfg.seed}, patch {cfg.patch_size}) to {cfg.out}")
     return 0
 
 

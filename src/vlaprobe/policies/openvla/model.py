@@ -75,8 +75,14 @@ class OpenVLA(nn.Module):
         self.language_model = LlamaForCausalLM(llama_config(config))
 
     def embed(self, pixel_values: torch.Tensor, input_ids: torch.Tensor) -> torch.Tensor:
-        """(1, 6, 224, 224), (1, L) → (1, L + P, H): [embed(<s>), projector(patches), embed(rest)]."""
-        patches = self.projector(self.vision_backbone(pixel_values.to(self.projector.fc1.weight.dtype)))
+        """(B, 6, 224, 224), (B, L) → (B, L + P, H): [embed(<s>), projector(patches), embed(rest)]."""
+        return self.embed_features(
+            self.vision_backbone(pixel_values.to(self.projector.fc1.weight.dtype)), input_ids
+        )
+
+    def embed_features(self, features: torch.Tensor, input_ids: torch.Tensor) -> torch.Tensor:
+        """:meth:`embed` from the fused backbone's patch features (B, P, V), e.g. cached ones."""
+        patches = self.projector(features.to(self.projector.fc1.weight.dtype))
         tokens = self.language_model.get_input_embeddings()(input_ids)
         return torch.cat([tokens[:, :1], patches, tokens[:, 1:]], dim=1)
 

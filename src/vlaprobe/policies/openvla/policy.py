@@ -17,7 +17,8 @@ from vlaprobe import devices
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.policies.base import POOLINGS, PolicyStep, Pooling
 from vlaprobe.policies.openvla import actions, checkpoint, preprocessing
-from vlaprobe.policies.openvla.model import OpenVLA, Prediction
+from vlaprobe.policies.openvla.embedded import SEEDED_MODELS, embedded_folder
+from vlaprobe.policies.openvla.model import OpenVLA, Prediction, _pool
 from vlaprobe.policies.openvla.tiny import LIBERO_SPATIAL_LIKE_STATS, tiny_config, tiny_state_dict
 from vlaprobe.policies.openvla.tokenizer import HFTokenizer, Tokenizer, WordHashTokenizer, prompt_ids
 
@@ -68,16 +69,18 @@ class OpenVLAPolicy:
     # --- construction -----------------------------------------------------------------------------------
 
     @classmethod
-    def tiny(cls, seed: int = 0, device: str = "auto", **kwargs: Any) -> OpenVLAPolicy:
-        """The embedded tiny model, built from ``seed`` (no file, no download)."""
+    def tiny(cls, seed: int = 0, device: str = "auto", patch_size: int = 14, **kwargs: Any) -> OpenVLAPolicy:
+        """The embedded random tiny model, built from ``seed`` (no file, no download); ``patch_size`` 28 gives
+        the trained default's shape (64 patches) with random weights."""
         dev, dtype = device_and_dtype(device)
-        cfg = tiny_config()
+        cfg = tiny_config(patch_size=patch_size)
+        shape = "" if patch_size == 14 else f"-p{patch_size}"
         model = checkpoint.build_model(cfg, tiny_state_dict(cfg, seed), dev, dtype)
         return cls(
             model,
             WordHashTokenizer(),
             LIBERO_SPATIAL_LIKE_STATS,
-            model_id=f"tiny-openvla-seed{seed}",
+            model_id=f"tiny-openvla{shape}-seed{seed}",
             seed=seed,
             **kwargs,
         )
@@ -109,10 +112,12 @@ class OpenVLAPolicy:
 
     @classmethod
     def load(cls, model: str, device: str = "auto", seed: int = 0, **kwargs: Any) -> OpenVLAPolicy:
-        """``load_policy``'s implementation: "tiny" or a checkpoint folder."""
-        if model == "tiny":
-            return cls.tiny(seed=seed, device=device, **kwargs)
-        return cls.from_folder(model, device=device, **kwargs)
+        """``load_policy``'s implementation: a seeded name ("tiny", "tiny-libero-init"), a shipped model's name
+        ("tiny-libero") or a checkpoint folder."""
+        if model in SEEDED_MODELS:
+            return cls.tiny(seed=seed, device=device, patch_size=SEEDED_MODELS[model], **kwargs)
+        folder = embedded_folder(model)
+        return cls.from_folder(model if folder is None else folder, device=device, **kwargs)
 
     def save_pretrained(self, folder: str | Path) -> None:
         """Write this model (safetensors + JSON config) so ``load_policy(folder)`` rebuilds it exactly."""
@@ -171,6 +176,27 @@ class OpenVLAPolicy:
             model_image=model_image,
             action_tokens=tokens,
         )
+
+    def observe(self, model_images: np.ndarray, instruction: str) -> np.ndarray:
+        """Hidden states of preprocessed images, (B, 224, 224, 3) uint8 → (B, layers, hidden) float32: the
+        prompt pass of :meth:`step` batched, without decoding (re-observing stored episodes with another model,
+        :mod:`vlaprobe.collection.reobserve`). The "action_tokens" pooling needs decoded tokens: use :meth:`step`."""
+        if self.pooling == "action_tokens":
+            raise VlaprobeError(
+                'pooling "action_tokens" needs the decoded tokens; re-observe with last_prompt, mean_text or mean_all'
+            )
+        pixels = torch.cat([self.pixel_values(m) for m in model_images])
+        ids = self.prompt_ids(instruction).expand(len(model_images), -1)
+        with torch.inference_mode():
+            out = self.model.language_model.model(
+                inputs_embeds=self.model.embed(pixels, ids), use_cache=False, output_hidden_states=True
+            )
+            patches = self.model.config.num_patches
+            rows = [
+                _pool(tuple(h[i : i + 1] for h in out.hidden_states), self.pooling, patches)
+                for i in range(len(model_images))
+            ]
+        return torch.stack(rows).float().cpu().numpy()
 
     def describe(self) -> dict[str, Any]:
         return {

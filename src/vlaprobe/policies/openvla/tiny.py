@@ -32,8 +32,10 @@ LIBERO_SPATIAL_LIKE_STATS = {
 """Action statistics of LIBERO-spatial's scale, so the tiny model's actions have realistic magnitudes."""
 
 
-def tiny_config(hidden_size: int = TINY_HIDDEN_SIZE) -> OpenVLAConfig:
-    """The tiny architecture: 64-wide ViTs (4 and 3 blocks) and a 32-layer decoder of ``hidden_size``."""
+def tiny_config(hidden_size: int = TINY_HIDDEN_SIZE, patch_size: int = 14) -> OpenVLAConfig:
+    """The tiny architecture: 64-wide ViTs (4 and 3 blocks) on ``patch_size`` patches of the 224 px image
+    (14: 256 patches as in OpenVLA; 28: 64, the trained default's shape) and a 32-layer decoder of
+    ``hidden_size``."""
     heads = max(1, hidden_size // 32)
     return OpenVLAConfig(
         featurizer=ViTConfig(
@@ -44,8 +46,11 @@ def tiny_config(hidden_size: int = TINY_HIDDEN_SIZE) -> OpenVLAConfig:
             class_token=True,
             reg_tokens=4,
             layer_scale=True,
+            patch_size=patch_size,
         ),
-        fused_featurizer=ViTConfig(embed_dim=64, depth=3, num_heads=4, mlp_hidden=239, map_head=True),
+        fused_featurizer=ViTConfig(
+            embed_dim=64, depth=3, num_heads=4, mlp_hidden=239, map_head=True, patch_size=patch_size
+        ),
         text=LlamaDims(
             hidden_size=hidden_size,
             intermediate_size=3 * hidden_size,
