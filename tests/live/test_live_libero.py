@@ -41,7 +41,7 @@ def probes(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def server(probes: Path, tmp_path_factory: pytest.TempPathFactory) -> LiveServer:
-    cfg = ServeConfig(probes=probes, device="cpu", recordings=tmp_path_factory.mktemp("live"))
+    cfg = ServeConfig(probes=probes, model="tiny", device="cpu", recordings=tmp_path_factory.mktemp("live"))
     app = create_app(build_engine(cfg, load_probes(cfg)), limits_of(cfg, None))
     with LiveServer(app) as srv:
         yield srv
@@ -112,7 +112,7 @@ def test_drop_raises_the_regression_event(server: LiveServer) -> None:
 def test_cli_starts_in_seconds_and_prints_the_address(probes: Path, tmp_path: Path) -> None:
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     cmd = [sys.executable, "-m", "vlaprobe.cli", "serve", "--probes", str(probes), "--port", "0"]
-    cmd += ["--recordings", str(tmp_path / "live"), "--device", "cpu"]
+    cmd += ["--recordings", str(tmp_path / "live"), "--device", "cpu", "--model", "tiny"]
     start = time.monotonic()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     try:

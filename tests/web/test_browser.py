@@ -91,10 +91,11 @@ def collect_store(folder: Path) -> None:
     from vlaprobe.collection.collect import collect
     from vlaprobe.configs.collect import CollectConfig
     from vlaprobe.configs.env import EnvConfig
+    from vlaprobe.configs.policy import PolicyConfig
 
     cfg = CollectConfig(
         out=folder, tasks=(0,), episodes_per_task=1, max_tries_per_task=1, keep_failed=True, progress=False,
-        env=EnvConfig(max_steps=12),
+        env=EnvConfig(max_steps=12), policy=PolicyConfig(model="tiny"),
     )  # fmt: skip
     collect(cfg)
 
@@ -123,6 +124,7 @@ class Serve:
             "--store", str(self.tmp / "store"),
             "--host", "127.0.0.1",
             "--port", str(self.port),
+            "--model", "tiny",
         ]  # fmt: skip
         with open(self.log_path, "a") as log:
             self.proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
