@@ -177,7 +177,12 @@ def _balanced(pred: np.ndarray, truth: np.ndarray) -> float:
 @pytest.mark.libero
 def test_probes_match_scikit_learn_on_a_real_store(real_store: Path) -> None:
     """Our converged probes and scikit-learn's LogisticRegression (same standardisation, same C per layer)
-    score the same balanced accuracy, within 0.01, on every layer and head."""
+    score the same balanced accuracy, within 0.01, on every layer and head.
+
+    Both are solved to near their common minimiser (ours to a gradient of 1e-5, about float32's limit here;
+    scikit-learn's to 1e-6): on this small store one of 80 test rows moves the balanced accuracy by 0.0125,
+    and at the default tolerance 1e-4 one near-boundary row of one layer may fall on the other side
+    (docs/probing.md gives the parity at the default tolerance on the default run)."""
     linear_model = pytest.importorskip("sklearn.linear_model")
     data = load_store(real_store)
     (fold,) = split_episodes(data.episode_tasks, 0.2, 1, seed=0)
@@ -190,7 +195,7 @@ def test_probes_match_scikit_learn_on_a_real_store(real_store: Path) -> None:
         compared += 1
         y = data.labels[head][:, kept]
         groups = column_groups(data, np.zeros(len(kept), np.int64), 0)
-        probes = fit_probes(data.hidden, y, train, ProbeConfig(device="cpu"), seed=0, groups=groups)
+        probes = fit_probes(data.hidden, y, train, ProbeConfig(device="cpu", tol=1e-5), seed=0, groups=groups)
         assert probes.mean is not None and probes.std is not None and probes.c is not None
         ours = (probes.logits(data.hidden, test) > 0).numpy()
         for i in range(len(data.layers)):

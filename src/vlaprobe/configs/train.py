@@ -51,7 +51,8 @@ class ProbeConfig:
     history: int = 10
     """L-BFGS memory (correction pairs kept per probe)."""
     memory_mb: float = 1024
-    """Working memory budget of the solver; layers are processed in chunks that fit it."""
+    """Working memory budget of the solver on an accelerator, where layers are solved in chunks that fit it
+    (on a CPU one layer at a time, so that stopped probes leave the working set per layer)."""
     balance: bool = False
     """Weight each atom's positives by its negative/positive ratio in the training split (off in the paper)."""
     threshold: float = 0.5

@@ -114,13 +114,17 @@ def _line_search(
     f: torch.Tensor,
     gd: torch.Tensor,
     step: torch.Tensor,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Per-column Armijo backtracking from ``step``; returns (accepted step, 0 where none was found), logits dz."""
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Per-column Armijo backtracking from ``step``.
+
+    Returns (accepted step, 0 where none was found; the objective there, ``f`` where none; logits dz).
+    """
     dz = prob.logits(d)
     pw, dw = p[:, :, :-1], d[:, :, :-1]
     ww, wd, dd = _dot(pw, pw), _dot(pw, dw), _dot(dw, dw)
     pending = gd < 0
     accepted = torch.zeros_like(step)
+    f_new = f.clone()
     for _ in range(40):
         if not bool(pending.any()):
             break
@@ -129,58 +133,114 @@ def _line_search(
         )
         ok = pending & (trial <= f + 1e-4 * step * gd)
         accepted = torch.where(ok, step, accepted)
+        f_new = torch.where(ok, trial, f_new)
         pending &= ~ok
         step = torch.where(pending, step * 0.5, step)
-    return accepted, dz
+    return accepted, f_new, dz
+
+
+@dataclass
+class _State:
+    """The solver's per-column state of one layer chunk (every tensor has a columns axis K)."""
+
+    p: torch.Tensor  # (L, K, H + 1) parameters, the bias last
+    z: torch.Tensor  # (L, n, K) logits
+    f: torch.Tensor  # (L, K) objective
+    g: torch.Tensor  # (L, K, H + 1) gradient
+    gamma: torch.Tensor  # (L, K) initial inverse-Hessian scale
+    active: torch.Tensor  # (L, K) bool: still iterating
+    iterations: torch.Tensor  # (L, K) long
+    hist: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]  # (s, y, rho) pairs, oldest first
+
+    def select(self, keep: torch.Tensor) -> _State:
+        """The state of the columns ``keep`` (an index tensor) only."""
+        hist = [
+            (s.index_select(1, keep), y.index_select(1, keep), r.index_select(1, keep))
+            for s, y, r in self.hist
+        ]
+        return _State(
+            *(t.index_select(1, keep) for t in (self.p,)),
+            self.z.index_select(2, keep),
+            *(t.index_select(1, keep) for t in (self.f, self.g, self.gamma, self.active, self.iterations)),
+            hist,
+        )
+
+
+def _compact(
+    prob: _Problem, st: _State, cols: torch.Tensor, out: _State
+) -> tuple[_Problem, _State, torch.Tensor]:
+    """Record every working column's state in ``out`` (at its original index ``cols``), then drop the
+    columns that stopped on every layer of the chunk, so that later iterations cost only what still runs."""
+    out.p[:, cols], out.f[:, cols], out.g[:, cols] = st.p, st.f, st.g
+    out.iterations[:, cols], out.active[:, cols] = st.iterations, st.active
+    keep = torch.nonzero(st.active.any(0)).flatten()
+    weight = None if prob.weight is None else prob.weight.index_select(1, keep)
+    small = _Problem(
+        prob.x, prob.y.index_select(1, keep), weight, prob.inv_n[keep], prob.l2.index_select(1, keep)
+    )
+    return small, st.select(keep), cols[keep]
 
 
 def _solve_chunk(prob: _Problem, p: torch.Tensor, tol: float, max_iter: int, history: int):
-    """Run L-BFGS on one layer chunk from ``p``; returns (p, iterations, loss, grad max, converged)."""
+    """Run L-BFGS on one layer chunk from ``p``; returns (p, iterations, loss, grad max, converged).
+
+    Every tenth iteration, when under 3/4 of the columns still run on some layer, the stopped ones leave the
+    working set (the columns' problems are independent, so this changes no column's path).
+    """
     z = prob.logits(p)
     f = prob.data_loss(z) + prob.penalty(p)
     g = prob.gradient(z, p)
-    gmax = g.abs().amax(-1)
-    active = gmax > tol
-    iterations = torch.zeros_like(f, dtype=torch.long)
-    hist: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
-    gamma = torch.ones_like(f)
-    first = True
+    active = g.abs().amax(-1) > tol
+    st = _State(p, z, f, g, torch.ones_like(f), active, torch.zeros_like(f, dtype=torch.long), [])
+    out = _State(p.clone(), z, f.clone(), g.clone(), st.gamma, active.clone(), st.iterations.clone(), [])
+    cols = torch.arange(p.shape[1], device=p.device)
     for it in range(max_iter):
-        if not bool(active.any()):
+        if it % 10 == 0 and it > 0 and int(st.active.any(0).sum()) < 0.75 * len(cols):
+            prob, st, cols = _compact(prob, st, cols, out)
+        if not bool(st.active.any()):
             break
-        d = _direction(g, hist, gamma)
+        _iterate(prob, st, tol, history, first=it == 0, recompute=it % 10 == 9)
+    _compact(prob, st, cols, out)
+    gmax = out.g.abs().amax(-1)
+    return out.p, out.iterations, out.f, gmax, gmax <= tol
+
+
+def _iterate(prob: _Problem, st: _State, tol: float, history: int, first: bool, recompute: bool) -> None:
+    """One L-BFGS iteration of every active column, in place."""
+    g, active = st.g, st.active
+    d = _direction(g, st.hist, st.gamma)
+    gd = _dot(g, d)
+    bad = gd >= 0  # not a descent direction (numerical trouble): fall back to the gradient
+    if bool(bad.any()):
+        d = torch.where(bad[..., None], -g, d)
         gd = _dot(g, d)
-        bad = gd >= 0  # not a descent direction (numerical trouble): fall back to the gradient
-        if bool(bad.any()):
-            d = torch.where(bad[..., None], -g, d)
-            gd = _dot(g, d)
-        d.mul_(active[..., None])
-        gd = torch.where(active, gd, torch.zeros_like(gd))
-        step = torch.ones_like(f)
-        if first:
-            step = torch.clamp(1.0 / g.abs().sum(-1).clamp_min(1e-12), max=1.0)
-            first = False
-        step, dz = _line_search(prob, p, d, z, f, gd, step)
-        stuck = active & (step == 0)
-        active &= ~stuck
-        s = d * step[..., None]
-        p = p + s
-        z = prob.logits(p) if it % 10 == 9 else z.add_(step[:, None] * dz)
-        f = prob.data_loss(z) + prob.penalty(p)
-        g_new = prob.gradient(z, p)
-        yv = g_new - g
-        sy = _dot(s, yv)
-        curved = sy > 1e-10
-        rho = torch.where(curved, 1.0 / torch.where(curved, sy, torch.ones_like(sy)), torch.zeros_like(sy))
-        gamma = torch.where(curved, sy / _dot(yv, yv).clamp_min(1e-20), gamma)
-        hist.append((s, yv, rho))
-        if len(hist) > history:
-            hist.pop(0)
-        iterations += active.long()
-        g = g_new
-        gmax = g.abs().amax(-1)
-        active &= gmax > tol
-    return p, iterations, f, gmax, gmax <= tol
+    d.mul_(active[..., None])
+    gd = torch.where(active, gd, torch.zeros_like(gd))
+    step = torch.ones_like(st.f)
+    if first:
+        step = torch.clamp(1.0 / g.abs().sum(-1).clamp_min(1e-12), max=1.0)
+    step, f_new, dz = _line_search(prob, st.p, d, st.z, st.f, gd, step)
+    active &= ~(active & (step == 0))  # no acceptable step: stuck
+    s = d * step[..., None]
+    st.p = st.p + s
+    if recompute:  # against drift of the updated logits
+        st.z = prob.logits(st.p)
+        st.f = prob.data_loss(st.z) + prob.penalty(st.p)
+    else:
+        st.z.add_(step[:, None] * dz)
+        st.f = f_new
+    g_new = prob.gradient(st.z, st.p)
+    yv = g_new - g
+    sy = _dot(s, yv)
+    curved = sy > 1e-10
+    rho = torch.where(curved, 1.0 / torch.where(curved, sy, torch.ones_like(sy)), torch.zeros_like(sy))
+    st.gamma = torch.where(curved, sy / _dot(yv, yv).clamp_min(1e-20), st.gamma)
+    st.hist.append((s, yv, rho))
+    if len(st.hist) > history:
+        st.hist.pop(0)
+    st.iterations += active.long()
+    st.g = g_new
+    active &= g_new.abs().amax(-1) > tol
 
 
 def fit_logistic(
@@ -193,12 +253,16 @@ def fit_logistic(
     max_iter: int = 500,
     history: int = 10,
     memory_mb: float = 1024,
+    init: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, Convergence]:
     """Fit every column of ``y`` on every layer of ``x``; return (weight (L, H, K), bias (L, K), convergence).
 
     ``x`` float32 (layers, rows, hidden); ``y`` float (rows, columns) in {0, 1}; ``l2`` (layers, columns) the
     penalty per problem; ``weight`` optional (rows, columns) row weights (0 leaves a row out of a column's
-    problem; ``n`` counts the rows with a weight). Starts at w = 0, b = the weighted log-odds.
+    problem; ``n`` counts the rows with a weight). Starts at ``init`` (weight (L, H, K), bias (L, K)), e.g. the
+    solution for a stronger penalty, else at w = 0, b = the weighted log-odds. On a CPU the layers are solved
+    one at a time, so that the columns that stopped leave the working set per layer; on an accelerator in
+    chunks of layers that fit ``memory_mb``.
     """
     num_layers, n, hidden = x.shape
     k = y.shape[1]
@@ -211,7 +275,7 @@ def fit_logistic(
     total = counts if weight is None else weight.sum(0)
     freq = (wy.sum(0) / total.clamp_min(1e-12)).clamp(1e-4, 1 - 1e-4)
     per_layer = 4 * (6 * n * max(k, 1) + (2 * history + 8) * max(k, 1) * (hidden + 1))
-    chunk = max(1, min(num_layers, int(memory_mb * 2**20 // per_layer)))
+    chunk = 1 if x.device.type == "cpu" else max(1, min(num_layers, int(memory_mb * 2**20 // per_layer)))
     weights = torch.empty((num_layers, hidden, k))
     biases = torch.empty((num_layers, k))
     out = {name: np.empty((num_layers, k)) for name in ("iterations", "loss", "grad_norm", "converged")}
@@ -220,7 +284,11 @@ def fit_logistic(
             part = slice(start, min(num_layers, start + chunk))
             prob = _Problem(x[part], y, weight, inv_n, l2[part].to(x.device, torch.float32))
             p = torch.zeros((part.stop - part.start, k, hidden + 1), device=x.device)
-            p[:, :, -1] = torch.logit(freq)
+            if init is None:
+                p[:, :, -1] = torch.logit(freq)
+            else:
+                p[:, :, :-1] = init[0][part].transpose(1, 2).to(x.device)
+                p[:, :, -1] = init[1][part].to(x.device)
             p, iters, f, gmax, done = _solve_chunk(prob, p, tol, max_iter, history)
             weights[part] = p[:, :, :-1].transpose(1, 2).cpu()
             biases[part] = p[:, :, -1].cpu()

@@ -3,8 +3,10 @@
 Per layer and head, one inverse strength C from a small grid (``ProbeConfig.c_grid``), shared by the head's
 atoms: the one with the lowest held-out log-loss, averaged over the head's atoms and the folds. The folds
 divide the *training* episodes (stratified by task, as the train/test split), so the test episodes never
-influence C. Every (fold, C, atom) is one column of a single batched fit (:func:`~vlaprobe.probes.lbfgs.fit_logistic`),
-its fold's held-out rows weighted 0. The features are those of the final fit (standardised with the whole
+influence C. Per C, every (fold, atom) is one column of a single batched fit
+(:func:`~vlaprobe.probes.lbfgs.fit_logistic`), its fold's held-out rows weighted 0; the grid runs from the
+strongest penalty to the weakest, each fit starting from the previous one's solution (a warm start: the
+same minimiser, fewer iterations). The features are those of the final fit (standardised with the whole
 training split's statistics, which use no label).
 """
 
@@ -89,30 +91,31 @@ def choose_c(
     row_episode = np.searchsorted(episodes, groups.episode[rows])
     scored = np.flatnonzero(groups.scored)
     ys = y[:, scored]
-    train_masks, columns_y, l2 = [], [], []
-    for fold in folds:
-        train = torch.as_tensor(np.isin(row_episode, fold.train), dtype=torch.float32, device=x.device)
-        for c in grid:
-            train_masks.append(train[:, None].expand(-1, len(scored)))
-            columns_y.append(ys)
-            l2.append(np.full(len(scored), l2_of_c(c, float(train.sum()))))
-    weight = torch.cat(train_masks, 1)
-    targets = torch.cat(columns_y, 1)
-    l2_t = torch.as_tensor(np.concatenate(l2), dtype=torch.float32)[None].expand(num_layers, -1)
-    w, b, _ = fit_logistic(
-        x,
-        targets,
-        l2_t.contiguous(),
-        weight=weight,
-        tol=cfg.tol,
-        max_iter=cfg.max_iter,
-        history=cfg.history,
-        memory_mb=cfg.memory_mb,
-    )
-    held = _held_out_loss(x, targets, w, b, 1.0 - weight)  # (layers, folds * grid * scored)
-    held = held.reshape(num_layers, len(folds), len(grid), len(scored)).mean(1)  # (layers, grid, scored)
+    masks = [
+        torch.as_tensor(np.isin(row_episode, f.train), dtype=torch.float32, device=x.device) for f in folds
+    ]
+    weight = torch.cat([m[:, None].expand(-1, len(scored)) for m in masks], 1)  # (rows, folds * scored)
+    targets = ys.repeat(1, len(folds))
+    held, start = [], None
+    for c in grid:  # ascending: each C starts from the solution of the stronger penalty before it
+        l2 = np.concatenate([np.full(len(scored), l2_of_c(c, float(m.sum()))) for m in masks])
+        l2_t = torch.as_tensor(l2, dtype=torch.float32)[None].expand(num_layers, -1).contiguous()
+        w, b, _ = fit_logistic(
+            x,
+            targets,
+            l2_t,
+            weight=weight,
+            tol=cfg.tol,
+            max_iter=cfg.max_iter,
+            history=cfg.history,
+            memory_mb=cfg.memory_mb,
+            init=start,
+        )
+        start = (w, b)
+        held.append(_held_out_loss(x, targets, w, b, 1.0 - weight))  # (layers, folds * scored)
+    mean_held = np.stack(held, 1).reshape(num_layers, len(grid), len(folds), len(scored)).mean(2)
     scored_group = groups.group[scored]
-    loss = np.stack([held[:, :, scored_group == g].mean(2) for g in ids], 1)  # (layers, groups, grid)
+    loss = np.stack([mean_held[:, :, scored_group == g].mean(2) for g in ids], 1)  # (layers, groups, grid)
     chosen = np.asarray(grid)[np.argmin(loss, axis=2)]  # first minimum: the smallest C, strongest penalty
     per_column = chosen[:, np.searchsorted(ids, groups.group)]
     return CrossValidation(grid, len(folds), loss, chosen, ids), per_column

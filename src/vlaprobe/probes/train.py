@@ -198,19 +198,33 @@ def _fit(
 
 
 def _warn_at_cap(probes: LinearProbes) -> None:
+    """Warn about probes that stopped above the tolerance: at the iteration cap, or where no step lowered the
+    objective any more (float32 round-off near the minimum; harmless when the gradient is near ``tol``)."""
     conv = probes.convergence
     if conv is None or conv.converged.all():
         return
     stopped = ~conv.converged
-    log.warning(
-        "%d of %d probes stopped before the tolerance %g (at --probe.max-iter %d or in a failed line search; "
-        "largest gradient %.2g); raise --probe.max-iter",
-        int(stopped.sum()),
-        stopped.size,
-        conv.tol,
-        conv.max_iter,
-        float(conv.grad_norm[stopped].max()),
-    )
+    at_cap = stopped & (conv.iterations >= conv.max_iter)
+    stalled = stopped & ~at_cap
+    if at_cap.any():
+        log.warning(
+            "%d of %d probes stopped at --probe.max-iter %d above the tolerance %g (largest gradient %.2g); "
+            "raise --probe.max-iter",
+            int(at_cap.sum()),
+            stopped.size,
+            conv.max_iter,
+            conv.tol,
+            float(conv.grad_norm[at_cap].max()),
+        )
+    if stalled.any():
+        log.warning(
+            "%d of %d probes stopped where no step lowered the objective, above the tolerance %g (largest "
+            "gradient %.2g): float32 round-off near the minimum",
+            int(stalled.sum()),
+            stopped.size,
+            conv.tol,
+            float(conv.grad_norm[stalled].max()),
+        )
 
 
 def _tensors(
