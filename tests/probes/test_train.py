@@ -226,7 +226,10 @@ def test_probes_stopped_at_the_cap_are_counted_and_warned_about(
         out = train_on_data(small_data(), cfg, tmp_path)
     fit = json.loads((out / "evaluation.json").read_text())["heads"]["object"]["fit"]
     assert fit["at_cap"] == fit["probes"] > 0 and np.max(fit["iterations"]) == 2
-    assert "stopped at --probe.max-iter 2 above the tolerance" in caplog.text and "raise --probe.max-iter" in caplog.text
+    assert (
+        "stopped at --probe.max-iter 2 above the tolerance" in caplog.text
+        and "raise --probe.max-iter" in caplog.text
+    )
 
 
 @pytest.mark.parametrize("heads", [("object", "action"), ("action",)])
