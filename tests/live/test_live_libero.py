@@ -14,6 +14,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import simplejpeg
 from tests.live.fakes import LiveServer, random_probes
@@ -123,3 +124,30 @@ def test_cli_starts_in_seconds_and_prints_the_address(probes: Path, tmp_path: Pa
         proc.wait(30)
     assert line.startswith("vlaprobe live monitor: http://127.0.0.1:"), proc.stderr.read()
     assert elapsed < 30
+
+
+def test_the_trained_default_drives_live(probes: Path, tmp_path: Path) -> None:
+    """`vlaprobe serve --driver policy` path: tiny-libero's own actions step the simulator, every step streamed."""
+    meta = json.loads((probes / "probes.json").read_text())
+    meta["model_id"] = "tiny-libero"
+    own = tmp_path / "probes"
+    own.mkdir()
+    for f in probes.iterdir():
+        (own / f.name).write_bytes(f.read_bytes())
+    (own / "probes.json").write_text(json.dumps(meta))
+    cfg = ServeConfig(probes=own, device="cpu", driver="policy", recordings=tmp_path / "live")
+    assert cfg.model == "tiny-libero"  # the shipped default observer
+    app = create_app(build_engine(cfg, load_probes(cfg)), limits_of(cfg, None))
+    with LiveServer(app) as srv, connect(srv.url, max_size=None) as ws:
+        assert json.loads(ws.recv(timeout=30))["model_id"] == "tiny-libero"
+        ws.send(json.dumps({"type": "start", "task": 3, "init": 44, "driver": "policy", "max_steps": 25}))
+        msgs = follow(ws)
+    steps = [m for m in msgs if m["type"] == "step"]
+    assert [m["t"] for m in steps] == list(range(25)) and msgs[-1]["steps"] == 25
+    assert all(m["timings"]["model_ms"] > 0 for m in steps[1:])
+    acted = [m for m in steps if m["action"] is not None]
+    assert len(acted) >= 24 and all(m["predicted_action"] is not None for m in acted)
+    # The executed action is the model's own (the gripper dimension as LIBERO takes it: +-1).
+    for m in acted:
+        assert m["action"][:6] == pytest.approx(m["predicted_action"][:6], abs=1e-5)
+    assert len({tuple(np.round(m["action"][:6], 4)) for m in acted}) > 1  # not a constant action

@@ -153,7 +153,8 @@ def probe_fit(fitted: CrossFit, cols: np.ndarray, cfg: TrainConfig) -> ProbeFit:
         iterations=nested(conv.iterations),
         loss=nested(conv.loss),
         grad_norm=nested(conv.grad_norm),
-        at_cap=int((~conv.converged).sum()),
+        at_cap=int((~conv.converged & (conv.iterations >= conv.max_iter)).sum()),
+        stalled=int((~conv.converged & (conv.iterations < conv.max_iter)).sum()),
         probes=int(conv.converged.size),
     )
 

@@ -127,9 +127,12 @@ class ProbeFit:
     grad_norm: Nested
     """(layers, atoms) final largest absolute gradient entry."""
     at_cap: int
-    """Probes that stopped without reaching ``tol`` (at ``max_iter`` or in a failed line search)."""
+    """Probes that stopped at ``max_iter`` without reaching ``tol``."""
     probes: int
     """Probes fit (layers x atoms)."""
+    stalled: int = 0
+    """Probes that stopped above ``tol`` before the cap, where no step lowered the objective (float32
+    round-off near the minimum)."""
 
 
 @dataclass
