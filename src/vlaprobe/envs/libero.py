@@ -23,7 +23,12 @@ from vlaprobe.envs.placements import (
     layout_problems,
     placement_seed,
     read_layout,
+    swap_regions,
+    swapped_samplers,
+    table_center,
+    table_placements,
 )
+from vlaprobe.envs.referents import parse_reference, reference_problems
 from vlaprobe.envs.setup import _quiet_import_robosuite, prepare_libero
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.symbols import Labeler, WorldState
@@ -110,7 +115,7 @@ class LiberoTaskEnv:
         self.instruction: str = spec.language
         self.task_name: str = spec.name
         self._init_states = bench.get_task_init_states(self.task_index)
-        self.sampled = self.cfg.inits == "sampled"
+        self.sampled = self.cfg.inits != "fixed"
         self.num_init_states = SAMPLED_INITS if self.sampled else len(self._init_states)
         self.last_placement: PlacementReport | None = None
         """How the last sampled reset's layout was found (None under fixed inits)."""
@@ -130,6 +135,14 @@ class LiberoTaskEnv:
         self.goal = read_goal(self._sim_env)
         self.labeler = Labeler(self.scene, self.goal)
         self._index = SceneIndex(self._sim_env, self.scene)
+        self._reference = None
+        if self.cfg.inits == "sampled-swap":
+            self._reference = parse_reference(self.instruction, self.goal, self.scene)
+            if self._reference is None:
+                raise VlaprobeError(
+                    f"--inits sampled-swap: task {self.task_index}'s instruction {self.instruction!r} has no form "
+                    "whose referent can be checked after a swap; use --inits sampled"
+                )
         self._gripper_command = -1.0
         self._step = 0
 
@@ -185,10 +198,12 @@ class LiberoTaskEnv:
         rejected: list[str] = []
         for draw in range(MAX_DRAWS):
             seed = placement_seed(self.task_index, init, draw)
+            regions = swap_regions(problem, np.random.default_rng(seed)) if self._reference else None
             self._prepare_reset(seed)
             self._unplace_fixtures()
             try:
-                raw = self._env.reset()
+                with swapped_samplers(self._sim_env, regions):
+                    raw = self._env.reset()
             except RandomizationError as exc:
                 rejected.append(f"sampler: {exc}")
                 continue
@@ -197,14 +212,29 @@ class LiberoTaskEnv:
             layout = read_layout(
                 self._sim_env, names, self._index.geom_owner, sampled, self._index.table_height
             )
-            problems = layout_problems(layout, problem, init_conditions_hold(self._sim_env, problem))
+            holds = init_conditions_hold(self._sim_env, problem)
+            problems = layout_problems(layout, problem, holds, regions) + self._reference_problems()
             if not problems:
-                self.last_placement = PlacementReport(init, seed, draw + 1, tuple(rejected))
+                moved = tuple((n, r) for n, r in (regions or {}).items() if r != table_placements(problem)[n])
+                self.last_placement = PlacementReport(init, seed, draw + 1, tuple(rejected), moved)
                 return obs
             rejected.append("; ".join(problems))
         raise VlaprobeError(
             f"task {self.task_index}: no valid sampled layout for sample {init} in {MAX_DRAWS} draws "
             f"(last: {rejected[-1]}); use --inits fixed for this task"
+        )
+
+    def _reference_problems(self) -> list[str]:
+        """Under ``--inits sampled-swap``: why the instruction does not name the object to pick alone in the
+        settled layout (:mod:`vlaprobe.envs.referents`); empty otherwise."""
+        if self._reference is None:
+            return []
+        state = self.world_state()
+        bits, _ = self.labeler(state)
+        self.labeler.reset()  # the check must not leave memory in the labeler of the coming episode
+        center = table_center(self._sim_env.parsed_problem, self._sim_env.workspace_offset)
+        return reference_problems(
+            self._reference, self.goal, self.scene, state, bits, self.labeler.vocabulary.object_atoms, center
         )
 
     def step(self, action: np.ndarray) -> Observation:

@@ -11,8 +11,9 @@ over, nothing still moving, no two objects interpenetrating, every object still 
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -44,6 +45,9 @@ class PlacementReport:
     """Draws made; 1 when the first sample was accepted."""
     rejected: tuple[str, ...] = field(default_factory=tuple)
     """One reason per rejected draw, in order."""
+    regions: tuple[tuple[str, str], ...] = ()
+    """Under ``--inits sampled-swap``: (object, table region it was sampled in) where that differs from the
+    task's BDDL; empty otherwise."""
 
 
 def placement_seed(task: int, index: int, draw: int = 0) -> int:
@@ -88,6 +92,55 @@ def sampling_problems(problem: Mapping[str, Any]) -> list[str]:
     return problems
 
 
+def table_placements(problem: Mapping[str, Any]) -> dict[str, str]:
+    """Movable object -> the table region its ``(:init)`` condition places it on (objects on other objects,
+    on fixtures or in drawers are left out: they follow what they stand on)."""
+    regions = problem.get("regions", {})
+    movable = {n for names in problem.get("objects", {}).values() for n in names}
+    return {
+        s[1]: s[2]
+        for s in problem.get("initial_state", [])
+        if len(s) == 3 and s[0] == "on" and s[1] in movable and _table_ranges(regions, s[2]) is not None
+    }
+
+
+def swap_regions(problem: Mapping[str, Any], rng: np.random.Generator) -> dict[str, str]:
+    """A random permutation of the table regions among the movable objects placed on them (``--inits
+    sampled-swap``): object -> region. The identity is one of the permutations."""
+    placed = table_placements(problem)
+    names = sorted(placed)
+    order = rng.permutation(len(names))
+    return {name: placed[names[j]] for name, j in zip(names, order, strict=True)}
+
+
+@contextlib.contextmanager
+def swapped_samplers(sim_env: Any, regions: Mapping[str, str] | None) -> Iterator[None]:
+    """While open, LIBERO's placement sampler of each object in ``regions`` samples in the ranges of the region
+    given there (the ranges of the object that region belongs to in the BDDL); restored on exit."""
+    if not regions:
+        yield
+        return
+    samplers = sim_env.placement_initializer.samplers
+    owner = {region: name for name, region in table_placements(sim_env.parsed_problem).items()}
+    saved = {name: (samplers[name].x_ranges, samplers[name].y_ranges) for name in regions}
+    try:
+        for name, region in regions.items():
+            samplers[name].x_ranges, samplers[name].y_ranges = saved[owner[region]]
+        yield
+    finally:
+        for name, (x, y) in saved.items():
+            samplers[name].x_ranges, samplers[name].y_ranges = x, y
+
+
+def table_center(problem: Mapping[str, Any], workspace_offset: np.ndarray) -> np.ndarray | None:
+    """(x, y) of the middle of the task's table-centre region (world frame), or None without one."""
+    for name in problem.get("regions", {}):
+        ranges = _table_ranges(problem["regions"], name)
+        if name.endswith("table_center") and ranges is not None:
+            return 0.5 * (ranges[:2] + ranges[2:]) + np.asarray(workspace_offset, dtype=np.float64)[:2]
+    return None
+
+
 def _rotation_angle(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
     """Angles (radians) between unit quaternions, row by row."""
     dot = np.abs(np.sum(q1 * q2, axis=-1))
@@ -120,16 +173,19 @@ def layout_problems(
     layout: SettledLayout,
     problem: Mapping[str, Any],
     holds: Mapping[str, bool],
+    swapped: Mapping[str, str] | None = None,
 ) -> list[str]:
     """Why a settled layout is rejected (empty: accepted).
 
     ``holds`` maps each ``(:init)`` condition on an object or a fixture region (``"on a b"``) to whether
     LIBERO's own predicate holds now; conditions on table regions are checked here against their ranges.
+    ``swapped``: object -> table region where a swap placed objects elsewhere than their ``(:init)`` says.
     """
     problems = []
     tipped = _rotation_angle(layout.quat_sampled, layout.quat_settled)
     regions = problem.get("regions", {})
     placed = {s[1]: s[2] for s in problem.get("initial_state", []) if len(s) == 3 and s[0] in ("on", "in")}
+    placed.update(swapped or {})
     for i, name in enumerate(layout.names):
         if layout.pos[i, 2] < layout.table_height - 0.05:
             problems.append(f"{name} fell off the table")
