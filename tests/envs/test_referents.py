@@ -184,3 +184,32 @@ def test_layout_check_follows_the_swapped_region() -> None:
     at_b = layout(pos=np.array([[0.31, 0.31, 0.92], [0.31, 0.31, 0.95]]))
     assert layout_problems(at_b, problem, {}) == ["bowl_1 left its region main_table_a_region"]
     assert layout_problems(at_b, problem, {}, {"bowl_1": "main_table_b_region"}) == []
+
+
+def test_permutations_are_redrawn_until_the_region_centres_keep_the_referent() -> None:
+    from vlaprobe.envs.placements import region_centers
+    from vlaprobe.envs.referents import placement_problems
+    from vlaprobe.symbols import Goal, Scene
+
+    scene = Scene(("bowl_1", "bowl_2", "plate_1", "box_1"), (), (), ())
+    goal = Goal(pick="bowl_1", place="plate_1")
+    ref = Reference("next_to", ("plate_1",))
+    offset = np.array([1.0, 0.0, 0.9])
+    centres = region_centers(SWAP_PROBLEM, table_placements(SWAP_PROBLEM), offset)
+    # Regions a, b, c are 1 m apart along x; box_1 stands on bowl_2, so it is where bowl_2 is.
+    assert {n: tuple(v) for n, v in centres.items()} == {
+        "bowl_1": (1.01, 0.01), "bowl_2": (2.01, 0.01), "plate_1": (3.01, 0.01), "box_1": (2.01, 0.01)
+    }  # fmt: skip
+
+    def accept(swap: object) -> bool:
+        xy = region_centers(SWAP_PROBLEM, swap, offset)  # type: ignore[arg-type]
+        return not placement_problems(ref, goal, scene, xy, None)
+
+    for seed in range(10):  # 1 m apart, nothing is next to anything: never accepted -> the BDDL's own regions
+        assert swap_regions(SWAP_PROBLEM, np.random.default_rng(seed), accept, tries=20) == table_placements(
+            SWAP_PROBLEM
+        )
+    near = {"bowl_1": (0.0, 0.0), "plate_1": (0.1, 0.0), "bowl_2": (0.5, 0.0)}
+    assert placement_problems(ref, goal, scene, {k: np.array(v) for k, v in near.items()}, None) == []
+    unknown = {"bowl_1": (0.0, 0.0), "bowl_2": (0.5, 0.0)}  # the anchor's place unknown: not judged
+    assert placement_problems(ref, goal, scene, {k: np.array(v) for k, v in unknown.items()}, None) == []

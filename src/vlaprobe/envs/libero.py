@@ -7,6 +7,7 @@ objects and goal) and where it stands (world-state snapshots) are read by :mod:`
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
@@ -23,12 +24,13 @@ from vlaprobe.envs.placements import (
     layout_problems,
     placement_seed,
     read_layout,
+    region_centers,
     swap_regions,
     swapped_samplers,
     table_center,
     table_placements,
 )
-from vlaprobe.envs.referents import parse_reference, reference_problems
+from vlaprobe.envs.referents import parse_reference, placement_problems, reference_problems
 from vlaprobe.envs.setup import _quiet_import_robosuite, prepare_libero
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.symbols import Labeler, WorldState
@@ -198,7 +200,7 @@ class LiberoTaskEnv:
         rejected: list[str] = []
         for draw in range(MAX_DRAWS):
             seed = placement_seed(self.task_index, init, draw)
-            regions = swap_regions(problem, np.random.default_rng(seed)) if self._reference else None
+            regions = self._swap(np.random.default_rng(seed)) if self._reference else None
             self._prepare_reset(seed)
             self._unplace_fixtures()
             try:
@@ -223,6 +225,21 @@ class LiberoTaskEnv:
             f"task {self.task_index}: no valid sampled layout for sample {init} in {MAX_DRAWS} draws "
             f"(last: {rejected[-1]}); use --inits fixed for this task"
         )
+
+    def _swap(self, rng: np.random.Generator) -> dict[str, str]:
+        """A region permutation under which the instruction can still single out the object to pick, judged on
+        the regions' centres before any physics (:func:`~vlaprobe.envs.referents.placement_problems`); the
+        settled layout is checked again by :meth:`_reference_problems`."""
+        problem, offset = self._sim_env.parsed_problem, self._sim_env.workspace_offset
+        center = table_center(problem, offset)
+        ref, goal, scene = self._reference, self.goal, self.scene
+        assert ref is not None
+
+        def plausible(swap: Mapping[str, str]) -> bool:
+            xy = region_centers(problem, swap, offset)
+            return not placement_problems(ref, goal, scene, xy, center)
+
+        return swap_regions(problem, rng, plausible)
 
     def _reference_problems(self) -> list[str]:
         """Under ``--inits sampled-swap``: why the instruction does not name the object to pick alone in the

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -104,13 +104,41 @@ def table_placements(problem: Mapping[str, Any]) -> dict[str, str]:
     }
 
 
-def swap_regions(problem: Mapping[str, Any], rng: np.random.Generator) -> dict[str, str]:
+def swap_regions(
+    problem: Mapping[str, Any],
+    rng: np.random.Generator,
+    accept: Callable[[Mapping[str, str]], bool] | None = None,
+    tries: int = 200,
+) -> dict[str, str]:
     """A random permutation of the table regions among the movable objects placed on them (``--inits
-    sampled-swap``): object -> region. The identity is one of the permutations."""
+    sampled-swap``): object -> region. With ``accept``, permutations are drawn until one is accepted (at most
+    ``tries``; then the identity, the task's own assignment). The identity is one of the permutations."""
     placed = table_placements(problem)
     names = sorted(placed)
-    order = rng.permutation(len(names))
-    return {name: placed[names[j]] for name, j in zip(names, order, strict=True)}
+    for _ in range(tries):
+        order = rng.permutation(len(names))
+        swap = {name: placed[names[j]] for name, j in zip(names, order, strict=True)}
+        if accept is None or accept(swap):
+            return swap
+    return dict(placed)
+
+
+def region_centers(
+    problem: Mapping[str, Any], swap: Mapping[str, str], workspace_offset: np.ndarray
+) -> dict[str, np.ndarray]:
+    """Where the objects will stand before the physics: (x, y) of the middle of each table-placed object's
+    region under ``swap`` (world frame), and of what an object stands on for objects on objects."""
+    regions = problem.get("regions", {})
+    offset = np.asarray(workspace_offset, dtype=np.float64)[:2]
+    xy = {}
+    for name, region in swap.items():
+        ranges = _table_ranges(regions, region)
+        if ranges is not None:
+            xy[name] = 0.5 * (ranges[:2] + ranges[2:]) + offset
+    for state in problem.get("initial_state", []):
+        if len(state) == 3 and state[0] == "on" and state[2] in xy and state[1] not in xy:
+            xy[state[1]] = xy[state[2]]
+    return xy
 
 
 @contextlib.contextmanager

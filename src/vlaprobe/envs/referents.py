@@ -119,18 +119,34 @@ def reference_problems(
 
     ``object_bits`` / ``object_atoms``: the labeler's object atoms of ``state`` (for "on" and "in");
     ``center``: (x, y) of the table centre (for "center")."""
-    names = scene.tabletop
-    candidates = [n for n in scene.pickupable if kind(n) == kind(goal.pick)]
-    xy = {n: state.pos[names.index(n), :2] for n in names}
-    fits: dict[str, bool] = {}
+    xy = {n: state.pos[i, :2] for i, n in enumerate(scene.tabletop)}
     if ref.relation in ("on", "in"):
         pred = "on" if ref.relation == "on" else "inside"
         bits: Mapping[str, bool] = dict(zip(object_atoms, map(bool, object_bits), strict=True))
-        fits = {c: bits.get(atom(pred, c, ref.anchors[0]), False) for c in candidates}
-    elif ref.relation == "between":
+        fits = {c: bits.get(atom(pred, c, ref.anchors[0]), False) for c in candidates(goal, scene)}
+        return _problems(ref, goal, fits)
+    return placement_problems(ref, goal, scene, xy, center)
+
+
+def candidates(goal: Goal, scene: Scene) -> list[str]:
+    """The objects of the pick's kind (the pick and its distractors)."""
+    return [n for n in scene.pickupable if kind(n) == kind(goal.pick)]
+
+
+def placement_problems(
+    ref: Reference, goal: Goal, scene: Scene, xy: Mapping[str, np.ndarray], center: np.ndarray | None
+) -> list[str]:
+    """The check of a spatial description ("between", "next to", "center") on objects' (x, y) positions; an
+    object missing from ``xy`` is not judged (its place is unknown, e.g. before a reset). "on" and "in" need the
+    detectors: no problem here."""
+    if ref.relation in ("on", "in") or any(a not in xy for a in ref.anchors):
+        return []
+    known = [c for c in candidates(goal, scene) if c in xy]
+    fits: dict[str, bool] = {}
+    if ref.relation == "between":
         a, b = xy[ref.anchors[0]], xy[ref.anchors[1]]
         axis = b - a
-        for c in candidates:
+        for c in known:
             t = float(np.dot(xy[c] - a, axis) / max(np.dot(axis, axis), 1e-12))
             off = float(np.linalg.norm(a + t * axis - xy[c]))
             fits[c] = BETWEEN_SPAN[0] <= t <= BETWEEN_SPAN[1] and off <= BETWEEN_WIDTH
@@ -139,15 +155,19 @@ def reference_problems(
             return ["the instruction names the table centre, which the task's regions do not give"]
         target = xy[ref.anchors[0]] if ref.relation == "next_to" else np.asarray(center)[:2]
         limit = NEXT_TO if ref.relation == "next_to" else CENTER
-        dist = {c: float(np.linalg.norm(xy[c] - target)) for c in candidates}
-        near = dist[goal.pick]
+        dist = {c: float(np.linalg.norm(xy[c] - target)) for c in known}
+        near = dist.get(goal.pick, np.inf)
         # The pick within reach of the anchor; another object of its kind not clearly farther also fits.
         fits = {c: d <= limit and (c == goal.pick or d < near + MARGIN) for c, d in dist.items()}
+    return _problems(ref, goal, fits) if goal.pick in xy else []
+
+
+def _problems(ref: Reference, goal: Goal, fits: Mapping[str, bool]) -> list[str]:
     what = f"{ref.relation.replace('_', ' ')} {' and '.join(ref.anchors)}".strip()
     problems = []
     if not fits.get(goal.pick, False):
         problems.append(f"the instruction ({what}) no longer fits {goal.pick}")
     problems.extend(
-        f"the instruction ({what}) also fits {c}" for c in candidates if c != goal.pick and fits[c]
+        f"the instruction ({what}) also fits {c}" for c, ok in fits.items() if c != goal.pick and ok
     )
     return problems
