@@ -56,14 +56,14 @@ def test_the_comparison_can_fail(tmp_path: Path) -> None:
 
 
 # The fingerprint's simulator floats depend on the BLAS kernel numpy's OpenBLAS picks at run time for the CPU
-# (DYNAMIC_ARCH): robosuite's operational-space controller computes the joint torques of every action through it
-# (mass-matrix inverse, Jacobian products), and with AVX-512 kernels (e.g. on an AVX-512 EPYC) they differ in
-# their last bits, which MuJoCo carries into every later state (same 95 steps, actions, images and action
+# (DYNAMIC_ARCH): robosuite's operational-space controller (mass-matrix inverse, Jacobian products) and the
+# expert's geometry go through it, and with AVX-512 kernels (e.g. on an AVX-512 EPYC) the results differ in their
+# last bits, which MuJoCo carries into every later state (same 95 steps, stored actions, images and action
 # tokens; sums equal to ~3e-15). Measured: OPENBLAS_CORETYPE=Haswell alone restores every byte, disabling numpy's
 # own AVX-512 loops alone does not, and the commit that took the fingerprint gives the same new bytes on an
-# AVX-512 machine as today's code (tests/collection/data: never the code). The fingerprint was taken where
-# OpenBLAS ran its Haswell (AVX2) kernels; the collection runs in a child process pinned to them (the variable
-# must be set before numpy loads), so the comparison stays byte for byte on any x86-64 CPU with AVX2.
+# AVX-512 machine as today's code. The fingerprint was taken where OpenBLAS ran its Haswell (AVX2) kernels; the
+# collection runs in a child process pinned to them (the variable must be set before numpy loads), so the
+# comparison stays byte for byte on any x86-64 CPU with AVX2.
 PINNED_BLAS = {"OPENBLAS_CORETYPE": "Haswell"}
 _COLLECT = """
 import sys
