@@ -66,6 +66,19 @@ def test_a_clean_layout_passes_and_each_fault_is_named() -> None:
     half_turn = np.array([np.cos(0.3), np.sin(0.3), 0.0, 0.0])  # 0.6 rad about x
     tipped = layout(quat_settled=np.stack([UPRIGHT, half_turn]))
     assert layout_problems(tipped, PROBLEM, ok) == ["plate_1 tipped over (34 deg)"]
+    spun = np.array([np.cos(0.5), 0.0, 0.0, np.sin(0.5)])  # 1 rad (57 deg) about the vertical axis: upright
+    assert layout_problems(layout(quat_settled=np.stack([UPRIGHT, spun])), PROBLEM, ok) == []
+    spun_then_tipped = np.array(
+        [
+            np.cos(0.5) * np.cos(0.3),
+            np.cos(0.5) * np.sin(0.3),
+            np.sin(0.5) * np.sin(0.3),
+            np.sin(0.5) * np.cos(0.3),
+        ]
+    )
+    assert layout_problems(layout(quat_settled=np.stack([UPRIGHT, spun_then_tipped])), PROBLEM, ok) == [
+        "plate_1 tipped over (34 deg)"
+    ]
     assert layout_problems(layout(speed=np.array([0.0, 0.2])), PROBLEM, ok) == [
         "plate_1 still moving (0.20 m/s)"
     ]

@@ -28,7 +28,8 @@ REGION_SLACK = 0.02
 PENETRATION = 0.005
 """Contact depth (metres) between two objects that counts as interpenetration."""
 TIPPED = 0.35
-"""Rotation (radians, ~20°) between the sampled and the settled orientation that counts as tipped over."""
+"""Tilt (radians, ~20°) of an object's up axis between the sampled and the settled orientation that counts as
+tipped over (a turn about the vertical axis alone is not: a plate or a bowl often spins while it settles)."""
 MOVING = 0.05
 """Speed (m/s) of any object after settling that counts as still falling or rolling."""
 
@@ -169,10 +170,16 @@ def table_center(problem: Mapping[str, Any], workspace_offset: np.ndarray) -> np
     return None
 
 
-def _rotation_angle(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
-    """Angles (radians) between unit quaternions, row by row."""
-    dot = np.abs(np.sum(q1 * q2, axis=-1))
-    return 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
+def _up(q: np.ndarray) -> np.ndarray:
+    """The body z axis in the world frame of MuJoCo quaternions (w, x, y, z), row by row."""
+    w, x, y, z = np.moveaxis(np.asarray(q, dtype=np.float64), -1, 0)
+    return np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=-1)
+
+
+def _tilt(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
+    """Angles (radians) between the up axes of unit quaternions, row by row: the tilt, blind to turns about the
+    vertical axis."""
+    return np.arccos(np.clip(np.sum(_up(q1) * _up(q2), axis=-1), -1.0, 1.0))
 
 
 @dataclass(frozen=True)
@@ -210,7 +217,7 @@ def layout_problems(
     ``swapped``: object -> table region where a swap placed objects elsewhere than their ``(:init)`` says.
     """
     problems = []
-    tipped = _rotation_angle(layout.quat_sampled, layout.quat_settled)
+    tipped = _tilt(layout.quat_sampled, layout.quat_settled)
     regions = problem.get("regions", {})
     placed = {s[1]: s[2] for s in problem.get("initial_state", []) if len(s) == 3 and s[0] in ("on", "in")}
     placed.update(swapped or {})
