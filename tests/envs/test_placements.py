@@ -83,8 +83,8 @@ def test_a_clean_layout_passes_and_each_fault_is_named() -> None:
         "plate_1 still moving (0.20 m/s)"
     ]
     away = layout(
-        pos=np.array([[0.06, 0.01, 0.92], [0.06, 0.01, 0.95]])
-    )  # 4 cm beyond the range + 2 cm slack
+        pos=np.array([[0.08, 0.01, 0.92], [0.08, 0.01, 0.95]])
+    )  # 6 cm beyond the range, 1 cm beyond the slack
     assert layout_problems(away, PROBLEM, ok) == ["bowl_1 left its region main_table_a_region"]
     deep = layout(penetration={("bowl_1", "plate_1"): PENETRATION + 0.002})
     assert layout_problems(deep, PROBLEM, ok) == ["bowl_1 and plate_1 intersect (7 mm)"]

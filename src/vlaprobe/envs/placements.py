@@ -23,8 +23,11 @@ SAMPLED_INITS = 1000
 """Sample indices per task under ``--inits sampled`` (the try budget's ceiling; fixed init states: 50)."""
 MAX_DRAWS = 20
 """Draws per sample index before giving up on it (the first valid draw is used)."""
-REGION_SLACK = 0.02
-"""How far (metres) an object's origin may end outside its table region's sampling range after settling."""
+REGION_SLACK = 0.05
+"""How far (metres) an object's origin may end outside its table region's sampling range after settling: the
+layouts LIBERO itself ships must pass. Over its 500 fixed init states of LIBERO-spatial (tasks 0-9 x 50), a bowl
+whose region touches the plate's rim slides off it while settling, up to 4.1 cm outside its region (task 8; 3.9
+cm task 0, 2.9 cm task 2; every other object <= 1.6 cm); the former 2 cm rejected 14 of those 500 layouts."""
 PENETRATION = 0.005
 """Contact depth (metres) between two objects that counts as interpenetration."""
 TIPPED = 0.35
