@@ -241,6 +241,19 @@ class LiberoTaskEnv:
 
         return swap_regions(problem, rng, plausible)
 
+    def fixed_layout_problems(self, init: int) -> list[str]:
+        """Reset to LIBERO's fixed init state ``init`` (as :meth:`reset` under ``--inits fixed``) and return what
+        the sampled-layout checks would say of it: LIBERO ships these layouts, so every check must pass them
+        (``bench/placement_checks.py``)."""
+        self._prepare_reset(1000 * self.task_index + init)
+        self._env.reset()
+        raw = self._env.set_init_state(self._init_states[init])
+        sampled = self._index.mj_data.xquat[self._index.body_ids].copy()
+        self._settle(raw)
+        e, names = self._sim_env, self.scene.tabletop
+        layout = read_layout(e, names, self._index.geom_owner, sampled, self._index.table_height)
+        return layout_problems(layout, e.parsed_problem, init_conditions_hold(e, e.parsed_problem))
+
     def _reference_problems(self) -> list[str]:
         """Under ``--inits sampled-swap``: why the instruction does not name the object to pick alone in the
         settled layout (:mod:`vlaprobe.envs.referents`); empty otherwise."""
