@@ -17,6 +17,7 @@ task x time baselines on a within-task episode split (when ``vlaprobe.probes.bas
 CPU time per step of both sets (process time: robust to other load on the machine). Final line: JSON.
 
     python bench/diverse_data.py        # 24 episodes on 2 worker processes
+    VLAPROBE_BENCH_INITS=sampled-swap python bench/diverse_data.py    # the sampled set with regions permuted
 """
 
 from __future__ import annotations
@@ -35,6 +36,8 @@ WORKERS = 2
 IMAGE = 32
 SAMPLED_PER_TASK = 2  # sample indices 0, 1 of every task (20 episodes)
 FIXED_TASKS = (0, 3, 6, 9)  # fixed init state 0 of these tasks: the CPU-per-step reference
+SAMPLED_INITS = os.environ.get("VLAPROBE_BENCH_INITS", "sampled")
+"""``--inits`` of the sampled set: ``sampled`` (default) or ``sampled-swap`` (regions permuted)."""
 FIXED_STORE = Path(os.environ.get("VLAPROBE_FIXED_STORE", REPO / "runs" / "default" / "activations"))
 """A fixed-init store (the default run's): its labels give the fixed-init diversity and baselines."""
 
@@ -128,7 +131,8 @@ def run_task(job: tuple[int, str, int, str]) -> list[dict]:
 
     records = []
     spec = PerturbSpec.parse(perturb if kind == "sampled" else "")
-    with LiberoTaskEnv(task, EnvConfig(render=False, inits=kind)) as env:  # type: ignore[arg-type]
+    inits = SAMPLED_INITS if kind == "sampled" else kind
+    with LiberoTaskEnv(task, EnvConfig(render=False, inits=inits)) as env:  # type: ignore[arg-type]
         grasp = env.labeler.vocabulary.action_atoms.index(atom("grasped", env.goal.pick))
         goal = env.labeler.vocabulary.object_atoms.index(atom("on", env.goal.pick, env.goal.place))
         for init in range(n):
@@ -281,6 +285,7 @@ def main() -> None:
     result = summarize(records)
     result["wall_s"] = time.perf_counter() - start
     result["perturb"] = perturb
+    result["inits"] = SAMPLED_INITS
     dump = os.environ.get("VLAPROBE_BENCH_DUMP")
     if dump:
         Path(dump).write_text(json.dumps(records))

@@ -623,3 +623,26 @@ def test_finetune_refuses_to_resume_another_shape_or_other_settings(
     )
     (out / "notes.txt").write_text("mine")
     assert "holds other files (notes.txt)" in one_line_error(capsys, argv)
+
+
+def test_swapped_inits_of_a_task_whose_instruction_cannot_be_checked(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from vlaprobe.envs import libero
+
+    real = libero.suite_tasks
+
+    def vague(suite: str = "libero_spatial") -> list[tuple[int, str]]:
+        return [
+            (i, "pick up the black bowl and place it on the plate" if i == 2 else t) for i, t in real(suite)
+        ]
+
+    monkeypatch.setattr(libero, "suite_tasks", vague)
+    out = tmp_path / "out"
+    err = one_line_error(
+        capsys, ["collect", "--out", str(out), "--tasks", "1", "2", "--inits", "sampled-swap"]
+    )
+    assert (
+        "--inits sampled-swap: task 2's instruction 'pick up the black bowl and place it on the plate'" in err
+    )
+    assert "use --inits sampled" in err and not out.exists()

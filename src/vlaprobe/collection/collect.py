@@ -81,7 +81,7 @@ def _env_meta(cfg: CollectConfig) -> dict[str, Any]:
 def _run_meta(cfg: CollectConfig) -> dict[str, Any]:
     """The settings an existing store must share, known before any model is loaded (sampled inits and
     perturbations only when used, so that stores of the defaults written before them still resume)."""
-    extra: dict[str, Any] = {"inits": "sampled"} if cfg.env.inits == "sampled" else {}
+    extra: dict[str, Any] = {"inits": cfg.env.inits} if cfg.env.inits != "fixed" else {}
     if cfg.perturb:
         extra["perturb"] = PerturbSpec.parse(cfg.perturb).text()
     return {

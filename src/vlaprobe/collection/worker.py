@@ -265,10 +265,12 @@ def _episode_marks(env: TaskEnv, perturber: Perturber | None) -> dict[str, Any]:
     marks: dict[str, Any] = {}
     placement = getattr(env, "last_placement", None)
     if getattr(env, "sampled", False) and placement is not None:
-        marks["inits"] = "sampled"
+        marks["inits"] = getattr(getattr(env, "cfg", None), "inits", "sampled")
         marks["placement_seed"] = placement.seed
         marks["placement_draws"] = placement.draws
         marks["rejected_samples"] = list(placement.rejected)
+        if placement.regions:
+            marks["placement_regions"] = dict(placement.regions)
     if perturber is not None:
         marks["perturbations"] = [
             {"kind": p.kind, "row": p.row} for p in perturber.planned if p.row is not None

@@ -196,19 +196,30 @@ def check_tasks(tasks: tuple[int, ...], suite: str, flag: str) -> list[int]:
 
 
 def check_inits(env: EnvConfig, tasks: tuple[int, ...]) -> None:
-    """With ``--inits sampled``, every selected task's BDDL lets LIBERO's placement sampler place its objects
-    (read from the BDDL files: no simulator)."""
-    if env.inits != "sampled":
+    """With ``--inits sampled`` (or ``sampled-swap``), every selected task's BDDL lets LIBERO's placement sampler
+    place its objects, and with ``sampled-swap`` its instruction has a form whose referent can be checked after a
+    swap (read from the BDDL files: no simulator)."""
+    if env.inits == "fixed":
         return
     from vlaprobe.envs.libero import suite_tasks, task_problem
     from vlaprobe.envs.placements import sampling_problems
+    from vlaprobe.envs.referents import instruction_form
 
-    for task in tasks or tuple(i for i, _ in suite_tasks(env.suite)):
-        problems = sampling_problems(task_problem(task, env.suite))
+    instructions = dict(suite_tasks(env.suite))
+    for task in tasks or tuple(instructions):
+        problem = task_problem(task, env.suite)
+        problems = sampling_problems(problem)
         if problems:
             raise VlaprobeError(
-                f"--inits sampled: task {task}'s regions cannot be sampled ({'; '.join(problems)}); "
+                f"--inits {env.inits}: task {task}'s regions cannot be sampled ({'; '.join(problems)}); "
                 "use --inits fixed or leave the task out (--tasks)"
+            )
+        goal = problem.get("goal_state", [])
+        pick = goal[0][1] if len(goal) == 1 and len(goal[0]) == 3 else ""
+        if env.inits == "sampled-swap" and instruction_form(instructions[task], pick) is None:
+            raise VlaprobeError(
+                f"--inits sampled-swap: task {task}'s instruction {instructions[task]!r} does not describe the "
+                "object to pick in a form that can be checked after a swap; use --inits sampled or leave it out"
             )
 
 

@@ -8,7 +8,7 @@ from typing import Annotated, Literal
 
 import tyro
 
-Inits = Literal["fixed", "sampled"]
+Inits = Literal["fixed", "sampled", "sampled-swap"]
 
 
 @dataclass
@@ -31,6 +31,8 @@ class EnvConfig:
     """Where objects start (``--inits``, the same flag in collect, run and serve): "fixed" resets to the task's
     50 saved init states (the paper); "sampled" draws a new layout from the task's BDDL regions with LIBERO's
     own placement sampler, one reproducible layout per sample index (its seed is stored with the episode), and
-    re-draws layouts that fall, tip, intersect or leave their region (docs/collection.md)."""
+    re-draws layouts that fall, tip, intersect or leave their region (docs/collection.md); "sampled-swap" also
+    permutes which table region each movable object starts in (one permutation per draw), re-drawing layouts
+    where the instruction no longer names the object to pick alone (docs/collection.md)."""
     max_steps: int = 300
     """Step budget of one episode (OpenVLA's LIBERO-spatial evaluation allows 220 after settling)."""

@@ -1,13 +1,13 @@
-"""LIBERO task environments: fixed init states, settled resets, raw agentview images, world-state snapshots.
+"""LIBERO task environments: the suite's tasks, fixed or sampled init states, settled resets, steps, images.
 
-One :class:`LiberoTaskEnv` wraps one LIBERO task (an ``OffScreenRenderEnv``). The typed scene (which objects
-are pickupable, which fixture regions are drawers, which fixtures switch on) is read from the task's BDDL
-problem and the built scene, not from a hand-typed list, so other LIBERO suites need no new detectors.
+One :class:`LiberoTaskEnv` wraps one LIBERO task (an ``OffScreenRenderEnv``). What the scene is (its typed
+objects and goal) and where it stands (world-state snapshots) are read by :mod:`vlaprobe.envs.libero_world`.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from vlaprobe.configs.env import EnvConfig
+from vlaprobe.envs.libero_world import CAMERA, SceneIndex, read_goal, read_scene
 from vlaprobe.envs.placements import (
     MAX_DRAWS,
     SAMPLED_INITS,
@@ -23,13 +24,17 @@ from vlaprobe.envs.placements import (
     layout_problems,
     placement_seed,
     read_layout,
+    region_centers,
+    swap_regions,
+    swapped_samplers,
+    table_center,
+    table_placements,
 )
+from vlaprobe.envs.referents import parse_reference, placement_problems, reference_problems
 from vlaprobe.envs.setup import _quiet_import_robosuite, prepare_libero
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.symbols import Articulation, Goal, Labeler, Scene, WorldState
-from vlaprobe.symbols.world import FINGER_GAP_MAX
+from vlaprobe.symbols import Labeler, WorldState
 
-CAMERA = "agentview"
 NOOP_ACTION = np.array([0, 0, 0, 0, 0, 0, -1], dtype=np.float64)  # gripper open
 
 
@@ -97,23 +102,6 @@ def task_problem(task: int, suite: str = "libero_spatial") -> dict[str, Any]:
     )
 
 
-def _articulation(props: dict[str, Any], key: str) -> Articulation:
-    """LIBERO's open/turn-on rule from an articulated object's declared ranges."""
-    art = props.get("articulation", {})
-    if key == "open":
-        open_r, close_r = art.get("default_open_ranges", []), art.get("default_close_ranges", [])
-        if not open_r:
-            raise VlaprobeError(
-                "a container's fixture declares no open range; this LIBERO object is not supported"
-            )
-        # Cabinets open as the joint goes negative (open range below the closed one), microwaves the other way.
-        if close_r and max(open_r) <= min(close_r):
-            return Articulation(threshold=float(max(open_r)), below=True)
-        return Articulation(threshold=float(min(open_r)), below=False)
-    on_r = art.get("default_turnon_ranges", [])
-    return Articulation(threshold=float(min(on_r)), below=False)
-
-
 class LiberoTaskEnv:
     """One LIBERO task: reset to a fixed init state (settled), step with the 7-D action, snapshot the world."""
 
@@ -129,7 +117,7 @@ class LiberoTaskEnv:
         self.instruction: str = spec.language
         self.task_name: str = spec.name
         self._init_states = bench.get_task_init_states(self.task_index)
-        self.sampled = self.cfg.inits == "sampled"
+        self.sampled = self.cfg.inits != "fixed"
         self.num_init_states = SAMPLED_INITS if self.sampled else len(self._init_states)
         self.last_placement: PlacementReport | None = None
         """How the last sampled reset's layout was found (None under fixed inits)."""
@@ -145,106 +133,20 @@ class LiberoTaskEnv:
             hard_reset=False,  # hard resets rebuild the simulation (1-3 s) and invalidate handles
         )
         self._sim_env = self._env.env
-        self.scene = self._read_scene()
-        self.goal = self._read_goal()
+        self.scene = read_scene(self._sim_env)
+        self.goal = read_goal(self._sim_env)
         self.labeler = Labeler(self.scene, self.goal)
-        self._index_geoms()
+        self._index = SceneIndex(self._sim_env, self.scene)
+        self._reference = None
+        if self.cfg.inits == "sampled-swap":
+            self._reference = parse_reference(self.instruction, self.goal, self.scene)
+            if self._reference is None:
+                raise VlaprobeError(
+                    f"--inits sampled-swap: task {self.task_index}'s instruction {self.instruction!r} has no form "
+                    "whose referent can be checked after a swap; use --inits sampled"
+                )
         self._gripper_command = -1.0
         self._step = 0
-
-    # ----- scene, read once -----------------------------------------------------------------------------
-    def _read_scene(self) -> Scene:
-        e = self._sim_env
-        problem = e.parsed_problem
-        pickupable = tuple(n for names in problem["objects"].values() for n in names)
-        fixtures = tuple(n for kind, names in problem["fixtures"].items() if kind != "table" for n in names)
-        containers: list[str] = []
-        arts: list[Articulation] = []
-        surfaces: list[str] = []
-        parents: dict[str, str] = {}
-        for name, site in e.object_sites_dict.items():
-            parent = getattr(site, "parent_name", None)
-            if parent not in fixtures:
-                continue  # table zones are placement aids, not objects
-            parents[name] = parent
-            if site.joints:
-                containers.append(name)
-                arts.append(_articulation(e.get_object(parent).object_properties, "open"))
-            else:
-                surfaces.append(name)
-        on_off = tuple(f for f in fixtures if hasattr(e.get_object(f), "turn_on"))
-        return Scene(
-            pickupable=pickupable,
-            fixtures=fixtures,
-            containers=tuple(containers),
-            container_articulation=tuple(arts),
-            surfaces=tuple(surfaces),
-            on_off=on_off,
-            on_off_articulation=tuple(_articulation(e.get_object(k).object_properties, "on") for k in on_off),
-            region_parent=parents,
-        )
-
-    def _read_goal(self) -> Goal:
-        goal = self._sim_env.parsed_problem["goal_state"]
-        if len(goal) != 1 or goal[0][0].lower() != "on":
-            raise VlaprobeError(
-                f"task goal {goal} is not a single On(a, b); only pick-and-place goals are supported"
-            )
-        return Goal(pick=goal[0][1], place=goal[0][2])
-
-    def _index_geoms(self) -> None:
-        """Map every collision geom to a row of WorldState.contact; precompute joint and site addresses."""
-        e = self._sim_env
-        model = e.sim.model
-        names = self.scene.tabletop
-        n = len(names)
-        owner = np.full(model.ngeom, -1, dtype=np.int64)
-        for i, name in enumerate(names):
-            for g in e.get_object(name).contact_geoms:
-                owner[model.geom_name2id(g)] = i
-        table = [g for g in range(model.ngeom) if (model.geom_id2name(g) or "") == "table_collision"]
-        owner[table] = n
-        self._table_height = (
-            float(e.sim.data.geom_xpos[table[0]][2] + model.geom_size[table[0]][2]) if table else 0.0
-        )
-        fingers = e.robots[0].gripper.important_geoms
-        for offset, key in ((1, "left_finger"), (2, "right_finger")):
-            for g in fingers[key]:
-                owner[model.geom_name2id(g)] = n + offset
-        # Geom pairs whose distances give WorldState.finger_gap: (finger geom, object geom) per finger and object.
-        self._finger_pairs = [
-            [
-                [
-                    (model.geom_name2id(f), model.geom_name2id(g))
-                    for f in fingers[key]
-                    for g in e.get_object(name).contact_geoms
-                ]
-                for key in ("left_finger", "right_finger")
-            ]
-            for name in self.scene.pickupable
-        ]
-        self._geom_owner = owner
-        obj_geoms = np.flatnonzero((owner >= 0) & (owner < n))
-        self._aabb_geoms = obj_geoms
-        self._aabb_owner = owner[obj_geoms]
-        self._body_ids = np.array([e.obj_body_id[name] for name in names])
-        self._site_ids = np.array([model.site_name2id(r) for r in self.scene.regions], dtype=np.int64)
-        self._region_size = np.array(
-            [np.asarray(e.object_sites_dict[r].size, dtype=np.float64) for r in self.scene.regions]
-        ).reshape(-1, 3)
-
-        def qpos_addr(joint: str) -> int:
-            return int(model.get_joint_qpos_addr(joint))
-
-        self._container_qpos = np.array(
-            [qpos_addr(e.object_sites_dict[c].joints[0]) for c in self.scene.containers], dtype=np.int64
-        )
-        self._on_off_qpos = np.array(
-            [qpos_addr(e.get_object(k).joints[0]) for k in self.scene.on_off], dtype=np.int64
-        )
-        self._cam_id = model.camera_name2id(CAMERA)
-        self._mj_model = model._model
-        self._mj_data = e.sim.data._data
 
     # ----- episode ----------------------------------------------------------------------------------------
     def reset(self, init: int) -> Observation:
@@ -267,7 +169,7 @@ class LiberoTaskEnv:
         # gripper's last command and MuJoCo's solver warm start across resets.
         np.random.seed(seed)
         self._sim_env.robots[0].gripper.current_action[:] = 0
-        self._mj_data.qacc_warmstart[:] = 0
+        self._index.mj_data.qacc_warmstart[:] = 0
 
     def _settle(self, raw: dict[str, Any]) -> Observation:
         self._gripper_command = -1.0
@@ -298,24 +200,71 @@ class LiberoTaskEnv:
         rejected: list[str] = []
         for draw in range(MAX_DRAWS):
             seed = placement_seed(self.task_index, init, draw)
+            regions = self._swap(np.random.default_rng(seed)) if self._reference else None
             self._prepare_reset(seed)
             self._unplace_fixtures()
             try:
-                raw = self._env.reset()
+                with swapped_samplers(self._sim_env, regions):
+                    raw = self._env.reset()
             except RandomizationError as exc:
                 rejected.append(f"sampler: {exc}")
                 continue
-            sampled = self._mj_data.xquat[self._body_ids].copy()
+            sampled = self._index.mj_data.xquat[self._index.body_ids].copy()
             obs = self._settle(raw)
-            layout = read_layout(self._sim_env, names, self._geom_owner, sampled, self._table_height)
-            problems = layout_problems(layout, problem, init_conditions_hold(self._sim_env, problem))
+            layout = read_layout(
+                self._sim_env, names, self._index.geom_owner, sampled, self._index.table_height
+            )
+            holds = init_conditions_hold(self._sim_env, problem)
+            problems = layout_problems(layout, problem, holds, regions) + self._reference_problems()
             if not problems:
-                self.last_placement = PlacementReport(init, seed, draw + 1, tuple(rejected))
+                moved = tuple((n, r) for n, r in (regions or {}).items() if r != table_placements(problem)[n])
+                self.last_placement = PlacementReport(init, seed, draw + 1, tuple(rejected), moved)
                 return obs
             rejected.append("; ".join(problems))
         raise VlaprobeError(
             f"task {self.task_index}: no valid sampled layout for sample {init} in {MAX_DRAWS} draws "
             f"(last: {rejected[-1]}); use --inits fixed for this task"
+        )
+
+    def _swap(self, rng: np.random.Generator) -> dict[str, str]:
+        """A region permutation under which the instruction can still single out the object to pick, judged on
+        the regions' centres before any physics (:func:`~vlaprobe.envs.referents.placement_problems`); the
+        settled layout is checked again by :meth:`_reference_problems`."""
+        problem, offset = self._sim_env.parsed_problem, self._sim_env.workspace_offset
+        center = table_center(problem, offset)
+        ref, goal, scene = self._reference, self.goal, self.scene
+        assert ref is not None
+
+        def plausible(swap: Mapping[str, str]) -> bool:
+            xy = region_centers(problem, swap, offset)
+            return not placement_problems(ref, goal, scene, xy, center)
+
+        return swap_regions(problem, rng, plausible)
+
+    def fixed_layout_problems(self, init: int) -> list[str]:
+        """Reset to LIBERO's fixed init state ``init`` (as :meth:`reset` under ``--inits fixed``) and return what
+        the sampled-layout checks would say of it: LIBERO ships these layouts, so every check must pass them
+        (``bench/placement_checks.py``)."""
+        self._prepare_reset(1000 * self.task_index + init)
+        self._env.reset()
+        raw = self._env.set_init_state(self._init_states[init])
+        sampled = self._index.mj_data.xquat[self._index.body_ids].copy()
+        self._settle(raw)
+        e, names = self._sim_env, self.scene.tabletop
+        layout = read_layout(e, names, self._index.geom_owner, sampled, self._index.table_height)
+        return layout_problems(layout, e.parsed_problem, init_conditions_hold(e, e.parsed_problem))
+
+    def _reference_problems(self) -> list[str]:
+        """Under ``--inits sampled-swap``: why the instruction does not name the object to pick alone in the
+        settled layout (:mod:`vlaprobe.envs.referents`); empty otherwise."""
+        if self._reference is None:
+            return []
+        state = self.world_state()
+        bits, _ = self.labeler(state)
+        self.labeler.reset()  # the check must not leave memory in the labeler of the coming episode
+        center = table_center(self._sim_env.parsed_problem, self._sim_env.workspace_offset)
+        return reference_problems(
+            self._reference, self.goal, self.scene, state, bits, self.labeler.vocabulary.object_atoms, center
         )
 
     def step(self, action: np.ndarray) -> Observation:
@@ -351,7 +300,7 @@ class LiberoTaskEnv:
         qpos = np.array(e.sim.data.get_joint_qpos(joint), dtype=np.float64)
         qpos[0] += xy[0] - state.pos[i, 0]
         qpos[1] += xy[1] - state.pos[i, 1]
-        qpos[2] += self._table_height + 0.003 - state.aabb_lo[i, 2]
+        qpos[2] += self._index.table_height + 0.003 - state.aabb_lo[i, 2]
         e.sim.data.set_joint_qpos(joint, qpos)
         e.sim.data.set_joint_qvel(joint, np.zeros(6))
         e.sim.forward()
@@ -363,76 +312,9 @@ class LiberoTaskEnv:
         # robosuite's observations are sim.render's rows as they come (OpenGL order, bottom row first).
         return np.asarray(self._sim_env.sim.render(camera_name=CAMERA, width=size, height=size))
 
-    # ----- world state ------------------------------------------------------------------------------------
     def world_state(self) -> WorldState:
         """Snapshot the simulator into a :class:`WorldState` (what every detector reads)."""
-        import mujoco  # not at module level: mujoco picks its GL backend at import (see envs.setup)
-
-        data = self._mj_data
-        model = self._mj_model
-        n = len(self.scene.tabletop)
-        # World AABB of each collision geom (box of its local AABB, rotated), reduced per object.
-        g = self._aabb_geoms
-        aabb = model.geom_aabb[g]  # (G, 6): local centre, half sizes
-        rot = data.geom_xmat[g].reshape(-1, 3, 3)
-        centre = data.geom_xpos[g] + np.einsum("gij,gj->gi", rot, aabb[:, :3])
-        half = np.einsum("gij,gj->gi", np.abs(rot), aabb[:, 3:])
-        lo = np.full((n, 3), np.inf)
-        hi = np.full((n, 3), -np.inf)
-        np.minimum.at(lo, self._aabb_owner, centre - half)
-        np.maximum.at(hi, self._aabb_owner, centre + half)
-        # Contacts between entities (objects, table, fingers).
-        contact = np.zeros((n + 3, n + 3), dtype=bool)
-        ncon = data.ncon
-        if ncon:
-            a = self._geom_owner[data.contact.geom1[:ncon]]
-            b = self._geom_owner[data.contact.geom2[:ncon]]
-            keep = (a >= 0) & (b >= 0) & (a != b)
-            contact[a[keep], b[keep]] = True
-            contact[b[keep], a[keep]] = True
-        sites = self._site_ids
-        robot = self._sim_env.robots[0]
-        # Body velocities (angular, then linear) at each object's origin, world frame.
-        vel = np.zeros((n, 6))
-        for i, body in enumerate(self._body_ids):
-            mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_BODY, int(body), vel[i], 0)
-        return WorldState(
-            pos=data.xpos[self._body_ids].copy(),
-            aabb_lo=lo,
-            aabb_hi=hi,
-            contact=contact,
-            region_pos=data.site_xpos[sites].copy(),
-            region_mat=data.site_xmat[sites].reshape(-1, 3, 3).copy(),
-            region_size=self._region_size,
-            container_qpos=data.qpos[self._container_qpos].copy(),
-            on_off_qpos=data.qpos[self._on_off_qpos].copy(),
-            camera_pos=data.cam_xpos[self._cam_id].copy(),
-            camera_mat=data.cam_xmat[self._cam_id].reshape(3, 3).copy(),
-            camera_fovy=float(model.cam_fovy[self._cam_id]),
-            eef_pos=np.array(self._sim_env.sim.data.site_xpos[robot.eef_site_id]),
-            gripper_qpos=data.qpos[robot._ref_gripper_joint_pos_indexes].copy(),
-            gripper_qvel=data.qvel[robot._ref_gripper_joint_vel_indexes].copy(),
-            finger_gap=self._finger_gap(),
-            gripper_command=self._gripper_command,
-            lin_vel=vel[:, 3:],
-            ang_vel=vel[:, :3],
-            table_height=self._table_height,
-        )
-
-    def _finger_gap(self) -> np.ndarray:
-        """(P, 2) distance of each finger to each pickupable object, capped at ``FINGER_GAP_MAX``.
-
-        MuJoCo culls far geom pairs by their bounding spheres (returning 1e10): ~0.3 ms for all pairs.
-        """
-        import mujoco
-
-        model, data, fromto = self._mj_model, self._mj_data, np.zeros(6)
-
-        def distance(pairs: list[tuple[int, int]]) -> float:
-            return min(mujoco.mj_geomDistance(model, data, f, g, FINGER_GAP_MAX, fromto) for f, g in pairs)
-
-        gap = np.array([[distance(pairs) for pairs in per_finger] for per_finger in self._finger_pairs])
-        return np.minimum(gap.reshape(-1, 2), FINGER_GAP_MAX)
+        return self._index.world_state(self._gripper_command)
 
     def labels(self) -> tuple[np.ndarray, np.ndarray]:
         """(object bits, action bits) of the current state."""

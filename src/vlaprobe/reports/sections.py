@@ -34,6 +34,7 @@ SECTION_PROVIDERS: list[str] = [
     "vlaprobe.reports.compare:report_section",
     "vlaprobe.cognition.monitor:report_section",
     "vlaprobe.collection.diversity:report_section",
+    "vlaprobe.probes.store_compare:report_section",
     "vlaprobe.probes.hypotheses_run:report_section",
 ]
 """``"module:function"`` providers, each ``(probes_folder: Path) -> Section | None``, in page order."""
