@@ -8,13 +8,13 @@ problem and the built scene, not from a hand-typed list, so other LIBERO suites 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
 
 import numpy as np
 
 from vlaprobe.configs.env import EnvConfig
+from vlaprobe.envs.base import Observation
 from vlaprobe.envs.placements import (
     MAX_DRAWS,
     SAMPLED_INITS,
@@ -31,20 +31,6 @@ from vlaprobe.symbols.world import FINGER_GAP_MAX
 
 CAMERA = "agentview"
 NOOP_ACTION = np.array([0, 0, 0, 0, 0, 0, -1], dtype=np.float64)  # gripper open
-
-
-@dataclass
-class Observation:
-    """What a policy sees after a reset or a step."""
-
-    image: np.ndarray | None
-    """Raw agentview render (H, W, 3) uint8 as robosuite returns it (upside down); None when not rendering."""
-    proprio: np.ndarray
-    """float32 (9,): end-effector position (3), quaternion xyzw (4), finger joint positions (2)."""
-    step: int
-    """Steps since the settled reset (0 at the first observation)."""
-    success: bool
-    """LIBERO's own goal check."""
 
 
 @lru_cache(maxsize=4)
