@@ -44,7 +44,7 @@ COMMANDS: dict[str, Command] = {
     "train": Command("vlaprobe.configs.train:TrainConfig", "vlaprobe.probes.train:main", "Train and evaluate per-layer linear probes."),
     "hypotheses": Command("vlaprobe.configs.hypotheses:HypothesesConfig", "vlaprobe.probes.hypotheses_run:main", "H1/H2: best, earliest and steepest layer per head; object-action differences with bootstrap intervals."),
     "compare-splits": Command("vlaprobe.configs.hypotheses:CompareSplitsConfig", "vlaprobe.probes.cross_task:main", "Within-task vs leave-one-task-out probes of one store, predicate by predicate."),
-    "report": Command("vlaprobe.configs.report:ReportConfig", "vlaprobe.reports.report:main", "Write the heatmap, curves and HTML page."),
+    "report": Command("vlaprobe.configs.report:ReportConfig", "vlaprobe.pipeline:report_main", "Write the heatmap, curves and HTML page."),
     "monitor": Command("vlaprobe.configs.monitor:MonitorConfig", "vlaprobe.cognition.monitor:main", "Run the cognition (beliefs, rules, subgoals) on stored episodes: truth vs probe predictions."),
     "model-info": Command("vlaprobe.configs.policy:ModelInfoConfig", "vlaprobe.policies.openvla.commands:model_info", "Load a VLA policy and print its description (with --step: one timed step) as JSON."),
     "serve": Command("vlaprobe.configs.serve:ServeConfig", "vlaprobe.live.serve:main", "Live monitor: stream episodes (simulator, model, probes, cognition) over a WebSocket; record and replay."),

@@ -342,9 +342,9 @@ SECTION_ID, SECTION_TITLE, SECTION_TEMPLATE = (
 
 
 def report_section(probes: Path) -> Section | None:
-    """Section provider for the report (``vlaprobe.reports.sections``): the monitor's figures when
-    ``monitor.json`` is in the probe folder, else None. The report renders it (``templates/monitor_section.html``
-    through the page's template loader); this is the only way the section is rendered."""
+    """The report's cognition section (``write_report(cfg, sections=[...])``): the monitor's figures when
+    ``monitor.json`` is in the probe folder, else None. The report renders ``templates/monitor_section.html``
+    of this package; this is the only way the section is rendered."""
     path = Path(probes) / MONITOR_FILE
     if not path.is_file():
         return None
@@ -354,7 +354,9 @@ def report_section(probes: Path) -> Section | None:
         data = json.loads(path.read_text())
     except (OSError, ValueError):
         raise VlaprobeError(f"cannot read {path}; run vlaprobe monitor again") from None
-    return Section(id=SECTION_ID, title=SECTION_TITLE, template=SECTION_TEMPLATE, data=data)
+    return Section(
+        id=SECTION_ID, title=SECTION_TITLE, template=SECTION_TEMPLATE, data=data, package="vlaprobe.cognition"
+    )
 
 
 def main(cfg: MonitorConfig) -> int:

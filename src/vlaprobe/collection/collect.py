@@ -61,6 +61,17 @@ class CollectResult:
     """Keys of the episodes this run added."""
 
 
+def check_collect_suite(cfg: CollectConfig, prefix: str = "") -> None:
+    """What ``check_collect`` cannot see from the config alone: the selected tasks exist in the suite, their
+    BDDL lets ``--inits sampled`` place the objects, and ``--perturb`` parses."""
+    from vlaprobe.envs.checks import check_inits, check_tasks
+    from vlaprobe.rollout.perturb import PerturbSpec
+
+    check_tasks(cfg.tasks, cfg.env.suite, f"--{prefix}tasks")
+    check_inits(cfg.env, cfg.tasks)
+    PerturbSpec.parse(cfg.perturb, f"--{prefix}perturb")
+
+
 def _validate(cfg: CollectConfig) -> None:
     """What collection needs beyond the range checks of ``check_collect``."""
     if not cfg.env.render:
@@ -154,6 +165,7 @@ class _Progress:
 def collect(cfg: CollectConfig, make_worker: MakeWorker = Worker) -> CollectResult:
     """Collect episodes into ``cfg.out`` (see the module docstring). ``make_worker`` builds each worker."""
     check_collect(cfg)
+    check_collect_suite(cfg)
     _validate(cfg)
     start = time.perf_counter()
     out = Path(cfg.out)

@@ -54,6 +54,11 @@ def suite_tasks(suite: str = "libero_spatial") -> list[tuple[int, str]]:
     return [(i, bench.get_task(i).language) for i in range(bench.get_num_tasks())]
 
 
+def num_init_states(suite: str, task: int) -> int:
+    """How many fixed init states a task has (read from LIBERO's init-state file: no simulator)."""
+    return len(_benchmark(suite).get_task_init_states(task))
+
+
 def resolve_task(task: int | str, suite: str = "libero_spatial") -> int:
     """A task index from an index or an exact instruction (case-insensitive)."""
     tasks = suite_tasks(suite)

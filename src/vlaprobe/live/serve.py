@@ -20,6 +20,7 @@ import numpy as np
 from vlaprobe import __version__
 from vlaprobe.configs.checks import check_serve, step_limit
 from vlaprobe.configs.serve import ServeConfig
+from vlaprobe.envs.checks import check_inits
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.live import protocol as P
 from vlaprobe.live.app import Engine, Limits, create_app
@@ -151,10 +152,11 @@ def build_engine(
     probes.check(model_id=policy.model_id, pooling=policy.pooling)
     if make_env is None or tasks is None:
         from vlaprobe.envs import make_env as make_task_env
-        from vlaprobe.envs.libero import _benchmark, suite_tasks
+        from vlaprobe.envs.libero import num_init_states as init_states
+        from vlaprobe.envs.libero import suite_tasks
 
         tasks = dict(suite_tasks(cfg.env.suite))
-        num_init_states = len(_benchmark(cfg.env.suite).get_task_init_states(0))  # no simulator needed
+        num_init_states = init_states(cfg.env.suite, 0)  # no simulator needed
 
         def make_env(task: int) -> Any:
             return make_task_env(task, cfg.env)
@@ -241,6 +243,7 @@ def main(cfg: ServeConfig) -> int:
     import uvicorn
 
     check_serve(cfg)
+    check_inits(cfg.env, ())
     token = resolve_token(cfg)
     limits = limits_of(cfg, token)
     probes = load_probes(cfg)

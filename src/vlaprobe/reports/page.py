@@ -57,15 +57,11 @@ def _fmt(value: Any, ci: Any = None, sd: Any = None) -> str:
     return text
 
 
-def _environment() -> jinja2.Environment:
+def _environment(packages: Sequence[str] = ()) -> jinja2.Environment:
+    """The page's templates, then those of the packages whose sections are on the page."""
+    names = dict.fromkeys(["vlaprobe.reports", *packages])
     env = jinja2.Environment(
-        # Sections of other packages (e.g. the cognition monitor) ship their templates with the package.
-        loader=jinja2.ChoiceLoader(
-            [
-                jinja2.PackageLoader("vlaprobe.reports", "templates"),
-                jinja2.PackageLoader("vlaprobe.cognition", "templates"),
-            ]
-        ),
+        loader=jinja2.ChoiceLoader([jinja2.PackageLoader(name, "templates") for name in names]),
         autoescape=True,
         undefined=jinja2.StrictUndefined,
         trim_blocks=True,
@@ -90,7 +86,7 @@ def render_page(
         for head, t in tables.items()
     }
     return (
-        _environment()
+        _environment([s.package for s in sections])
         .get_template("page.html")
         .render(
             title=title,

@@ -42,7 +42,8 @@ def write_report(cfg: ReportConfig, sections: Sequence[Section] = ()) -> Path:
     """Write every figure, its data and the HTML page; return the page's path.
 
     ``sections`` are added to the page after the figures, followed by those the registered providers find
-    for this probe folder (e.g. the cognition monitor's, when its data file exists)."""
+    for this probe folder (the diversity of its store, H1/H2 when computed). ``vlaprobe.pipeline.report`` adds
+    the cognition monitor's section."""
     check_report(cfg)
     out = Path(cfg.out) if cfg.out is not None else Path(cfg.probes).parent / "report"
     check_owned_folder(out, REPORT_FOLDER)  # a folder of someone else's files is never written into
@@ -157,13 +158,6 @@ def headline(head: str, h: HeadResult) -> str:
 
 def _num(v: float | None) -> str:
     return "–" if v is None else f"{v:.3f}"
-
-
-def main(cfg: ReportConfig) -> int:
-    """CLI entry: write the report and print where it is."""
-    page = write_report(cfg)
-    print(f"report written to {page}")
-    return 0
 
 
 # -- data of the figures -------------------------------------------------------------------------------

@@ -37,7 +37,9 @@ class ExpertDriver:
         from vlaprobe.envs.libero_expert import ScriptedExpert
 
         if not isinstance(env, LiberoTaskEnv):
-            raise VlaprobeError("the scripted expert reads the LIBERO simulator; use --driver policy elsewhere")
+            raise VlaprobeError(
+                "the scripted expert reads the LIBERO simulator; use --driver policy elsewhere"
+            )
         self.expert = ScriptedExpert(env, seed=seed)
 
     def reset(self) -> None:
