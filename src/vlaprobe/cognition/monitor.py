@@ -24,7 +24,7 @@ from vlaprobe.cognition.core import Cognition, CognitionStep
 from vlaprobe.cognition.readout import HEADS, ProbeReadout
 from vlaprobe.configs.monitor import MonitorConfig
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import write_atomic
+from vlaprobe.files import JsonObject, write_atomic
 from vlaprobe.symbols.world import Goal
 
 if TYPE_CHECKING:
@@ -107,7 +107,7 @@ class MonitorResult:
     rules: list[str]
     per_episode: list[EpisodeFigures]
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> JsonObject:
         """The figures of the issue's JSON: episodes, steps, truth, probes."""
         return {
             "episodes": self.episodes,
@@ -116,7 +116,7 @@ class MonitorResult:
             "probes": asdict(self.probes),
         }
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> JsonObject:
         return {"format": "vlaprobe-monitor", "format_version": 2, **asdict(self)}
 
 
@@ -150,9 +150,7 @@ def _run(cog: Cognition, obj: np.ndarray, act: np.ndarray) -> _Run:
     return _Run(steps, beliefs)
 
 
-def _episodes(
-    cfg: MonitorConfig, store: ActivationStore, probes_meta: dict[str, Any]
-) -> tuple[list[str], bool]:
+def _episodes(cfg: MonitorConfig, store: ActivationStore, probes_meta: JsonObject) -> tuple[list[str], bool]:
     keys = [e.key for e in store.episodes()]
     if cfg.all_episodes:
         return keys, False

@@ -15,7 +15,6 @@ import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
 
 from tqdm import tqdm
 
@@ -30,7 +29,7 @@ from vlaprobe.configs.checks import check_collect
 from vlaprobe.configs.collect import CollectConfig
 from vlaprobe.envs.setup import resolve_assets
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import check_output_folder, versions
+from vlaprobe.files import JsonObject, check_output_folder, versions
 from vlaprobe.rollout.perturb import PerturbSpec
 
 VOLATILE_MODEL_KEYS = ("device", "source")
@@ -80,7 +79,7 @@ def _validate(cfg: CollectConfig) -> None:
         raise VlaprobeError(f"--tasks lists a task twice: {list(cfg.tasks)}")
 
 
-def _env_meta(cfg: CollectConfig) -> dict[str, Any]:
+def _env_meta(cfg: CollectConfig) -> JsonObject:
     """Simulator settings that change the recorded data (the assets folder may move between machines)."""
     return {
         "image_size": cfg.env.image_size,
@@ -89,10 +88,10 @@ def _env_meta(cfg: CollectConfig) -> dict[str, Any]:
     }
 
 
-def _run_meta(cfg: CollectConfig) -> dict[str, Any]:
+def _run_meta(cfg: CollectConfig) -> JsonObject:
     """The settings an existing store must share, known before any model is loaded (sampled inits and
     perturbations only when used, so that stores of the defaults written before them still resume)."""
-    extra: dict[str, Any] = {"inits": "sampled"} if cfg.env.inits == "sampled" else {}
+    extra: JsonObject = {"inits": "sampled"} if cfg.env.inits == "sampled" else {}
     if cfg.perturb:
         extra["perturb"] = PerturbSpec.parse(cfg.perturb).text()
     return {
@@ -106,7 +105,7 @@ def _run_meta(cfg: CollectConfig) -> dict[str, Any]:
     }
 
 
-def _store_meta(cfg: CollectConfig, desc: RunDescription) -> dict[str, Any]:
+def _store_meta(cfg: CollectConfig, desc: RunDescription) -> JsonObject:
     model = {k: v for k, v in desc.model.items() if k not in VOLATILE_MODEL_KEYS}
     return {
         **_run_meta(cfg),

@@ -24,13 +24,14 @@ from vlaprobe.collection.store import ActivationStore, EpisodeInfo
 from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.configs.policy import PolicyConfig
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import JsonObject
 
 SOURCE_ONLY = frozenset({"hidden", "predicted_action", "action_tokens"})
 """Arrays of the source episode that belong to its observer and are not copied."""
 EPISODE_KEYS = frozenset(EpisodeInfo.__dataclass_fields__)
 
 
-def _meta(source: ActivationStore, policy: Any, cfg: PolicyConfig) -> dict[str, Any]:
+def _meta(source: ActivationStore, policy: Any, cfg: PolicyConfig) -> JsonObject:
     from vlaprobe.collection.collect import VOLATILE_MODEL_KEYS
 
     kept = {

@@ -27,6 +27,7 @@ import numpy as np
 import zarr
 
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import Json, JsonObject
 
 FORMAT = "vlaprobe-activations"
 FORMAT_VERSION = 1
@@ -41,7 +42,7 @@ def episode_key(task: int, init: int, attempt: int = 0) -> str:
     return f"t{task:02d}_i{init:02d}_a{attempt:02d}"
 
 
-def _success_step(attrs: Mapping[str, Any]) -> int | None:
+def _success_step(attrs: Mapping[str, Json]) -> int | None:
     if "success_step" in attrs:
         return None if attrs["success_step"] is None else int(attrs["success_step"])
     return int(attrs["length"]) - 1 if attrs["success"] else None  # written before post_success_steps
@@ -72,11 +73,11 @@ class EpisodeInfo:
     recorded with ``post_success_steps``. Stores written before it existed: the last row of a successful
     episode."""
 
-    def attrs(self) -> dict[str, Any]:
+    def attrs(self) -> JsonObject:
         return asdict(self)
 
     @classmethod
-    def from_attrs(cls, attrs: Mapping[str, Any]) -> EpisodeInfo:
+    def from_attrs(cls, attrs: Mapping[str, Json]) -> EpisodeInfo:
         return cls(
             key=str(attrs["key"]),
             task=int(attrs["task"]),
@@ -95,12 +96,12 @@ class EpisodeInfo:
 
 
 # ----- reading --------------------------------------------------------------------------------------------------
-def _read_json(path: Path) -> dict[str, Any]:
+def _read_json(path: Path) -> JsonObject:
     with open(path, "rb") as f:
         return json.load(f)
 
 
-def read_meta(path: Path, hint: str = "pass the --out folder of a `vlaprobe collect` run") -> dict[str, Any]:
+def read_meta(path: Path, hint: str = "pass the --out folder of a `vlaprobe collect` run") -> JsonObject:
     """The root attributes of a store, or a one-line error saying why ``path`` is not a readable store."""
     if not path.exists():
         raise VlaprobeError(f"no activation store at {path}: the folder does not exist; {hint}")
@@ -178,7 +179,7 @@ class EpisodeArrays(Mapping[str, np.ndarray]):
         return len(self._names)
 
     @property
-    def attrs(self) -> dict[str, Any]:
+    def attrs(self) -> JsonObject:
         """The episode group's attributes (the :class:`EpisodeInfo` fields, instruction, scene...)."""
         return dict(self._group.attrs)
 
@@ -186,7 +187,7 @@ class EpisodeArrays(Mapping[str, np.ndarray]):
 class ActivationStore:
     """Read-only view of a store: the episodes complete when it was opened, read one layer at a time."""
 
-    def __init__(self, path: Path, meta: dict[str, Any]) -> None:
+    def __init__(self, path: Path, meta: JsonObject) -> None:
         self.path = path
         self.meta = meta
         self.num_hidden_states: int = int(meta["num_hidden_states"])
@@ -294,7 +295,7 @@ class ActivationStore:
         """Tried units whose failed episode was not kept (their markers)."""
         return list_infos(self.path / "failures")
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> JsonObject:
         """What ``vlaprobe info --json`` prints."""
         eps = self.episodes()
         return {

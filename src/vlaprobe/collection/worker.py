@@ -27,6 +27,7 @@ from vlaprobe.configs.policy import PolicyConfig
 from vlaprobe.envs import make_env
 from vlaprobe.envs.base import TaskEnv
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import Json, JsonObject
 from vlaprobe.policies.base import VLAPolicy
 from vlaprobe.rollout import Driver, DriverName, EpisodeControl, make_driver, run_episode
 from vlaprobe.rollout.perturb import KIND_CODE, Perturber, PerturbSpec
@@ -43,7 +44,7 @@ class EpisodeResult:
     info: EpisodeInfo
     arrays: dict[str, np.ndarray]
     """Per-step arrays by store name (``hidden``, ``object_atoms``, ``image``, ``world/pos`` ...)."""
-    attrs: dict[str, Any]
+    attrs: JsonObject
     """Episode attributes besides :class:`EpisodeInfo` (instruction, scene, goal)."""
     seconds: float
     """Wall time of the step loop."""
@@ -55,7 +56,7 @@ class EpisodeResult:
 class RunDescription:
     """What a worker knows before any episode: the observer model and the suite (the store's metadata)."""
 
-    model: dict[str, Any]
+    model: JsonObject
     """The policy's JSON description (``VLAPolicy.describe()``)."""
     model_id: str
     num_hidden_states: int
@@ -244,7 +245,7 @@ class Worker:
             self.env = None
 
 
-def _row_values(r: Any) -> dict[str, Any]:
+def _row_values(r: Any) -> JsonObject:
     """One record's values of the per-step arrays."""
     return {
         "hidden": np.asarray(r.hidden, dtype=np.float16),
@@ -259,10 +260,10 @@ def _row_values(r: Any) -> dict[str, Any]:
     }
 
 
-def _episode_marks(env: TaskEnv, perturber: Perturber | None) -> dict[str, Any]:
+def _episode_marks(env: TaskEnv, perturber: Perturber | None) -> JsonObject:
     """Episode attributes of sampled placements and perturbations (none under the defaults, so fixed-init,
     unperturbed stores keep their attributes)."""
-    marks: dict[str, Any] = {}
+    marks: JsonObject = {}
     placement = getattr(env, "last_placement", None)
     if getattr(env, "sampled", False) and placement is not None:
         marks["inits"] = "sampled"
@@ -276,7 +277,7 @@ def _episode_marks(env: TaskEnv, perturber: Perturber | None) -> dict[str, Any]:
     return marks
 
 
-_STEP_ARRAYS: dict[str, Any] = {
+_STEP_ARRAYS: JsonObject = {
     "hidden": np.float16,
     "object_atoms": bool,
     "action_atoms": bool,
@@ -309,11 +310,11 @@ def world_states(arrays: Mapping[str, np.ndarray]) -> list[WorldState]:
     ]
 
 
-def stored_scene(attrs: Mapping[str, Any]) -> tuple[Scene, Goal]:
+def stored_scene(attrs: Mapping[str, Json]) -> tuple[Scene, Goal]:
     """(Scene, Goal) of an episode from its attributes, to rebuild its :class:`~vlaprobe.symbols.Labeler`."""
     from vlaprobe.symbols import Articulation, Goal, Scene
 
-    kwargs: dict[str, Any] = {}
+    kwargs: JsonObject = {}
     for f in dataclasses.fields(Scene):
         value = attrs["scene"][f.name]
         if f.name.endswith("articulation"):

@@ -31,6 +31,7 @@ from vlaprobe.collection.store import (
     read_meta,
 )
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import Json, JsonObject
 
 STAGING = ".staging"
 CHUNK_BYTES = 8 << 20
@@ -105,7 +106,7 @@ def _jsonable(value: Any) -> Any:
     return json.loads(json.dumps(value, default=str))
 
 
-def check_compatible(path: Path, stored: Mapping[str, Any], meta: Mapping[str, Any]) -> None:
+def check_compatible(path: Path, stored: Mapping[str, Json], meta: Mapping[str, Json]) -> None:
     """Refuse (one line) to mix runs whose :data:`COMPATIBLE_KEYS` present in ``meta`` differ from the store's."""
     for key in COMPATIBLE_KEYS:
         if key in meta:
@@ -139,14 +140,14 @@ class StoreWriter:
     Use as a context manager; the store folder stays locked against other writers until :meth:`close`.
     """
 
-    def __init__(self, path: Path, meta: dict[str, Any], lock_fd: int) -> None:
+    def __init__(self, path: Path, meta: JsonObject, lock_fd: int) -> None:
         self.path = path
         self.meta = meta
         self._lock_fd = lock_fd
         self._staging = path / STAGING
 
     @classmethod
-    def open(cls, path: str | Path, meta: Mapping[str, Any]) -> StoreWriter:
+    def open(cls, path: str | Path, meta: Mapping[str, Json]) -> StoreWriter:
         """Create the store with ``meta`` as its metadata, or open an existing compatible one.
 
         ``meta`` must hold every :data:`COMPATIBLE_KEYS` entry plus whatever else the store should record.
@@ -178,7 +179,7 @@ class StoreWriter:
         return cls(path, stored, fd)
 
     @staticmethod
-    def _create(path: Path, meta: dict[str, Any]) -> None:
+    def _create(path: Path, meta: JsonObject) -> None:
         """Build the empty hierarchy beside ``path`` and rename it into place (a kill leaves no half store)."""
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.parent / f".{path.name}.{uuid.uuid4().hex[:8]}.partial"
@@ -230,7 +231,7 @@ class StoreWriter:
                 )
 
     def stage(
-        self, info: EpisodeInfo, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any] | None = None
+        self, info: EpisodeInfo, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Json] | None = None
     ) -> StagedEpisode:
         """Write an episode under ``.staging/`` and flush it to disk; nothing is visible yet.
 
@@ -280,12 +281,12 @@ class StoreWriter:
         shutil.rmtree(staged.path, ignore_errors=True)
 
     def write_episode(
-        self, info: EpisodeInfo, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any] | None = None
+        self, info: EpisodeInfo, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Json] | None = None
     ) -> None:
         """Stage and publish in one go."""
         self.publish(self.stage(info, arrays, attrs))
 
-    def mark_failed(self, info: EpisodeInfo, attrs: Mapping[str, Any] | None = None) -> None:
+    def mark_failed(self, info: EpisodeInfo, attrs: Mapping[str, Json] | None = None) -> None:
         """Record that a unit was tried and failed, without its data (so a resume does not try it again)."""
         self._staging.mkdir(exist_ok=True)
         tmp = self._staging / f"{info.key}-{os.getpid()}-{uuid.uuid4().hex[:8]}"

@@ -15,11 +15,12 @@ from typing import Any
 import dacite
 
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import JsonObject
 
 
-def config_to_dict(cfg: Any) -> dict[str, Any]:
+def config_to_dict(cfg: Any) -> JsonObject:
     """A JSON-ready dict of a config dataclass (nested dataclasses, paths as strings, tuples as lists)."""
-    out: dict[str, Any] = {}
+    out: JsonObject = {}
     for f in dataclasses.fields(cfg):
         v = getattr(cfg, f.name)
         if dataclasses.is_dataclass(v) and not isinstance(v, type):
@@ -47,7 +48,7 @@ _DACITE = dacite.Config(
 )
 
 
-def config_from_dict(cls: type, data: dict[str, Any], source: str = "config") -> Any:
+def config_from_dict(cls: type, data: JsonObject, source: str = "config") -> Any:
     """Build a config dataclass from a dict (as written by :func:`config_to_dict`); unknown keys are refused."""
     try:
         return dacite.from_dict(cls, data, config=_DACITE)

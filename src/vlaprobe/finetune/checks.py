@@ -11,6 +11,7 @@ from vlaprobe.configs import config_to_dict
 from vlaprobe.configs.checks import check_seed
 from vlaprobe.configs.finetune import FinetuneConfig
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import JsonObject
 from vlaprobe.finetune.state import CHECKPOINT, RUN_FILES, recover
 from vlaprobe.policies.openvla.config import OpenVLAConfig
 
@@ -118,7 +119,7 @@ def check_run_folder(cfg: FinetuneConfig, arch: OpenVLAConfig) -> bool:
     return True
 
 
-def _read_settings(path: Path) -> dict[str, Any]:
+def _read_settings(path: Path) -> JsonObject:
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError):

@@ -13,6 +13,7 @@ from typing import Any
 import torch
 from torch import nn
 
+from vlaprobe.files import JsonObject
 from vlaprobe.policies.openvla.model import OpenVLA
 
 ADAPTER = "default"
@@ -56,7 +57,7 @@ def add_lora(model: OpenVLA, rank: int, dropout: float, seed: int) -> Any:
     return config
 
 
-def _lora_layers(model: nn.Module) -> dict[str, Any]:
+def _lora_layers(model: nn.Module) -> JsonObject:
     from peft.tuners.lora import LoraLayer
 
     return {name: m for name, m in model.named_modules() if isinstance(m, LoraLayer)}
@@ -103,7 +104,7 @@ def load_adapter(model: nn.Module, tensors: dict[str, torch.Tensor]) -> None:
         own[key].copy_(value)
 
 
-def adapter_config_json(config: Any) -> dict[str, Any]:
+def adapter_config_json(config: Any) -> JsonObject:
     """peft's ``adapter_config.json`` content (sets as sorted lists)."""
     out = {}
     for key, value in config.to_dict().items():

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import JsonObject
 from vlaprobe.live import protocol as P
 from vlaprobe.live.pipeline import STORE_PREFIX, EpisodeSpec
 from vlaprobe.rollout import EpisodeControl, make_driver, run_episode
@@ -195,7 +196,7 @@ class StoreEpisodes:
             )
         return out
 
-    def _attrs(self, key: str) -> dict[str, Any]:
+    def _attrs(self, key: str) -> JsonObject:
         return dict(self.store.episode(key).attrs)
 
     def verify(self, key: str) -> None:

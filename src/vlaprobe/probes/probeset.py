@@ -16,14 +16,13 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import write_atomic
+from vlaprobe.files import JsonObject, write_atomic
 
 FORMAT = "vlaprobe-probes"
 FORMAT_VERSION = 1
@@ -34,7 +33,7 @@ META_FILE = "probes.json"
 class ProbeSet:
     """The per-layer probes of every head of one observer model, ready for inference."""
 
-    def __init__(self, meta: dict[str, Any], tensors: dict[str, torch.Tensor]) -> None:
+    def __init__(self, meta: JsonObject, tensors: dict[str, torch.Tensor]) -> None:
         self.meta = meta
         self.tensors = {k: v.float().contiguous() for k, v in tensors.items()}
         self.layers: list[int] = list(meta["layers"])

@@ -24,7 +24,7 @@ import dacite
 import numpy as np
 
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import write_atomic
+from vlaprobe.files import JsonObject, write_atomic
 
 FORMAT = "vlaprobe-evaluation"
 FORMAT_VERSION = 3
@@ -251,7 +251,7 @@ class Evaluation:
     bootstrap: Bootstrap
     controls: Controls
     heads: dict[str, HeadResult]
-    config: dict[str, Any]
+    config: JsonObject
     seeds: dict[str, int]
     versions: dict[str, str]
     skipped_heads: dict[str, SkippedHead] = field(default_factory=dict)

@@ -10,6 +10,7 @@ from typing import Any
 
 import jinja2
 
+from vlaprobe.files import JsonObject
 from vlaprobe.probes.results import Evaluation
 from vlaprobe.reports.figures import metric_label
 from vlaprobe.reports.sections import Section
@@ -76,7 +77,7 @@ def _environment(packages: Sequence[str] = ()) -> jinja2.Environment:
 def render_page(
     title: str,
     evaluation: Evaluation,
-    tables: dict[str, Any],
+    tables: JsonObject,
     figures: Sequence[Figure],
     sections: Sequence[Section] = (),
 ) -> str:

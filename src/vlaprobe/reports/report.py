@@ -28,7 +28,7 @@ import numpy as np
 
 from vlaprobe.configs.checks import REPORT_FOLDER, check_report
 from vlaprobe.configs.report import ReportConfig
-from vlaprobe.files import check_owned_folder, mark_folder, write_atomic
+from vlaprobe.files import JsonObject, check_owned_folder, mark_folder, write_atomic
 from vlaprobe.probes.results import PARTS, Evaluation, HeadResult, arr, read_evaluation
 from vlaprobe.reports.figures import Rendered, Series, curves, heatmap, metric_label
 from vlaprobe.reports.page import Figure, render_page
@@ -120,7 +120,7 @@ def _curve_figures(out: Path, evaluation: Evaluation, cfg: ReportConfig) -> list
     return figures
 
 
-def _tables(evaluation: Evaluation) -> dict[str, Any]:
+def _tables(evaluation: Evaluation) -> JsonObject:
     """The page's tables per head: headline, best layer per predicate, dropped atoms, skipped predicates."""
     return {
         head: {
@@ -272,7 +272,7 @@ def _at(values: list[Any], index: tuple[int, ...]) -> Any:
     return values
 
 
-def _best_table(h: HeadResult, metrics: list[str]) -> dict[str, Any]:
+def _best_table(h: HeadResult, metrics: list[str]) -> JsonObject:
     """Per predicate at the head's best layer: every metric with CI, baseline, control and selectivity.
 
     ``<part>.<metric>.defined`` is the number of bootstrap resamples in which the figure was defined over all
@@ -281,7 +281,7 @@ def _best_table(h: HeadResult, metrics: list[str]) -> dict[str, Any]:
     i = best.index  # position of the best layer in the per-layer arrays
     rows = []
     for j, p in enumerate([*h.predicates, "(all atoms)"]):
-        row: dict[str, Any] = {"predicate": p}
+        row: JsonObject = {"predicate": p}
         for m in metrics:
             by_predicate = j < len(h.predicates)
             for part in PARTS:
@@ -307,7 +307,7 @@ def _best_table(h: HeadResult, metrics: list[str]) -> dict[str, Any]:
 # -- files --------------------------------------------------------------------------------------------
 
 
-def _write_figure(out: Path, stem: str, rendered: Rendered, rows: list[dict], data: dict[str, Any]) -> None:
+def _write_figure(out: Path, stem: str, rendered: Rendered, rows: list[dict], data: JsonObject) -> None:
     write_atomic(out / f"{stem}.png", rendered.png)
     write_atomic(out / f"{stem}.svg", rendered.svg)
     write_atomic(out / f"{stem}.json", json.dumps(data) + "\n")

@@ -17,7 +17,7 @@ from typing import Any
 import torch
 
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import write_atomic
+from vlaprobe.files import JsonObject, write_atomic
 from vlaprobe.policies.openvla.config import OpenVLAConfig, from_official, to_official
 from vlaprobe.policies.openvla.model import OpenVLA
 
@@ -32,7 +32,7 @@ def _read_json(path: Path) -> Any:
         raise VlaprobeError(f"cannot read {path} ({exc}); restore the checkpoint's copy") from None
 
 
-def _tiny_dims_overrides(path: Path) -> dict[str, dict[str, Any]]:
+def _tiny_dims_overrides(path: Path) -> dict[str, JsonObject]:
     dims = _read_json(path)
     try:
         out = {}
@@ -51,7 +51,7 @@ def _tiny_dims_overrides(path: Path) -> dict[str, dict[str, Any]]:
         ) from None
 
 
-def read_config(folder: Path) -> tuple[OpenVLAConfig, dict[str, Any], dict[str, Any]]:
+def read_config(folder: Path) -> tuple[OpenVLAConfig, JsonObject, JsonObject]:
     """(architecture, norm_stats, vlaprobe block or {}) of a checkpoint folder."""
     if not folder.is_dir():
         what = "is a file, not a folder" if folder.exists() else "not found"
@@ -171,8 +171,8 @@ def build_model(
 def save_checkpoint(
     folder: Path,
     model: OpenVLA,
-    norm_stats: dict[str, Any],
-    extra: dict[str, Any],
+    norm_stats: JsonObject,
+    extra: JsonObject,
     state: dict[str, torch.Tensor] | None = None,
 ) -> None:
     """Write ``config.json`` (official fields + "vlaprobe" block) and ``model.safetensors`` (float32): the
