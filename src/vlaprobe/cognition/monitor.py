@@ -25,10 +25,10 @@ from vlaprobe.cognition.readout import HEADS, ProbeReadout
 from vlaprobe.configs.monitor import MonitorConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject, write_atomic
-from vlaprobe.symbols.world import Goal
 
 if TYPE_CHECKING:
     from vlaprobe.collection.store import ActivationStore
+    from vlaprobe.probes.probeset import ProbeSet
     from vlaprobe.reports.sections import Section
 
 MONITOR_FILE = "monitor.json"
@@ -150,26 +150,20 @@ def _run(cog: Cognition, obj: np.ndarray, act: np.ndarray) -> _Run:
     return _Run(steps, beliefs)
 
 
-def _episodes(cfg: MonitorConfig, store: ActivationStore, probes_meta: JsonObject) -> tuple[list[str], bool]:
+def _episodes(cfg: MonitorConfig, store: ActivationStore, probes: ProbeSet) -> tuple[list[str], bool]:
+    from vlaprobe.probes.results import read_evaluation
+
     keys = [e.key for e in store.episodes()]
     if cfg.all_episodes:
         return keys, False
-    path = cfg.probes / EVALUATION_FILE
-    try:
-        test = json.loads(path.read_text())["split"]["test_episodes"]
-    except (OSError, ValueError, KeyError, TypeError):
-        raise VlaprobeError(
-            f"cannot read the held-out test episodes from {path}; pass the folder written by vlaprobe train, "
-            "or --all-episodes"
-        ) from None
+    test = read_evaluation(cfg.probes).split.test_episodes
     chosen = [k for k in test if k in set(keys)]
     if not chosen:
         raise VlaprobeError(
             f"none of the probes' test episodes is in store {cfg.store}; pass the store the probes were "
             "trained on, or --all-episodes"
         )
-    refit = str(probes_meta.get("trained_on", {}).get("split", "")).startswith("all")
-    return chosen, not refit
+    return chosen, not probes.refit_on_all
 
 
 def _ratio(a: float, b: float) -> float | None:
@@ -208,12 +202,11 @@ def _pair(
     mask: np.ndarray,
 ) -> _Pair:
     """Run one stored episode through the cognition on truth and on the probes' predictions."""
-    try:
-        goal = Goal(**store.episode(key).attrs["goal"])
-    except (KeyError, TypeError):
+    goal = store.episode(key).attributes.goal
+    if goal is None:
         raise VlaprobeError(
             f"episode {key} of store {label} records no task goal; collect it again with this vlaprobe"
-        ) from None
+        )
     names = (goal.pick, goal.place)
     if names not in cogs:
         obj_atoms, act_atoms = store.atom_names["object"], store.atom_names["action"]
@@ -296,7 +289,7 @@ def monitor(cfg: MonitorConfig) -> MonitorResult:
     store = ActivationStore.open(cfg.store)
     readout = ProbeReadout.load(cfg.probes, model_id=store.model_id)
     _check_store(store, readout, cfg.store)
-    keys, held_out = _episodes(cfg, store, readout.meta)
+    keys, held_out = _episodes(cfg, store, readout.probes)
     require_intact(cfg.store, read=True, keys=keys)  # a missing chunk would read as fill values
     sources = [(store, keys, str(cfg.store), "")]
     for path in cfg.extra_stores:

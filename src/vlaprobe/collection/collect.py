@@ -20,7 +20,7 @@ from tqdm import tqdm
 
 from vlaprobe.collection.executors import Executor, MakeWorker, make_executor
 from vlaprobe.collection.plan import Plan, Unit
-from vlaprobe.collection.store import read_meta
+from vlaprobe.collection.store import EpisodeInfo, read_meta
 from vlaprobe.collection.verify import require_intact
 from vlaprobe.collection.worker import EpisodeResult, RunDescription, Worker, unit_seed
 from vlaprobe.collection.writer import StagedEpisode, StoreWriter, check_compatible
@@ -231,7 +231,7 @@ def _loop(
 ) -> None:
     """Launch, wait, write, decide, until every task's prefix is known."""
     speculate = executor.capacity > 1
-    held: dict[Unit, tuple[EpisodeResult, StagedEpisode | None]] = {}
+    held: dict[Unit, tuple[EpisodeInfo, str, StagedEpisode | None]] = {}
     running = 0
     while not plan.complete():
         while running < executor.capacity and (unit := plan.next_unit(speculate)) is not None:
@@ -240,7 +240,11 @@ def _loop(
             running += 1
         if running == 0:  # the plan's invariants exclude it
             raise RuntimeError("collection plan stalled with nothing running")
-        for unit, episode in executor.wait():
+        finished = executor.wait()
+        while finished:
+            unit, episode = finished.pop(
+                0
+            )  # dropped after this pass: its buffers are freed before the next wait
             running -= 1
             result.episodes_run += 1
             result.steps += episode.info.length
@@ -249,19 +253,18 @@ def _loop(
             t0 = time.perf_counter()
             staged = None
             if episode.info.success or cfg.keep_failed:
-                staged = writer.stage(episode.info, episode.arrays, episode.attrs)
-            held[unit] = (episode, staged)
+                staged = writer.stage(episode.info, episode.steps.arrays(), episode.attrs.to_json())
+            held[unit] = (episode.info, episode.attrs.instruction, staged)
             for decided, keep in plan.finished(unit, episode.info.success):
-                done, staged_done = held.pop(decided)
+                done, instruction, staged_done = held.pop(decided)
                 if keep and staged_done is not None:
                     writer.publish(staged_done)
                     result.published.append(decided.key)
                 elif keep:
-                    writer.mark_failed(done.info, {"instruction": done.attrs["instruction"]})
+                    writer.mark_failed(done, {"instruction": instruction})
                 elif staged_done is not None:
                     writer.discard(staged_done)
             result.write_seconds += time.perf_counter() - t0
-            episode.arrays.clear()  # free the buffers before the next wait
             progress.finished(episode)
 
 

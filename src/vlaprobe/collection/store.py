@@ -8,6 +8,8 @@ A store is one folder holding a zarr (format 3) hierarchy that any zarr reader o
         hidden                     float16 (layers, T, hidden) or (layers, T, 7, hidden); one chunk per layer
         object_atoms, action_atoms bool (T, atoms), names in the array's attributes and in ``meta``
         image, proprio, action, predicted_action, action_tokens, step, world/* ...
+                                   (the columns of ``collection.episode.EpisodeSteps``; group attributes:
+                                   ``EpisodeInfo`` + ``EpisodeAttrs``)
     <store>/failures/<key>/        attributes only: a tried unit whose failed episode was not kept
 
 This module reads (:class:`ActivationStore`); only :class:`~vlaprobe.collection.writer.StoreWriter` writes,
@@ -26,8 +28,10 @@ from typing import Any
 import numpy as np
 import zarr
 
+from vlaprobe.collection.episode import EpisodeAttrs, EpisodeSteps, stored_records
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import Json, JsonObject
+from vlaprobe.rollout import StepRecord
 
 FORMAT = "vlaprobe-activations"
 FORMAT_VERSION = 1
@@ -149,8 +153,9 @@ def list_infos(folder: Path) -> list[EpisodeInfo]:
     return sorted(infos, key=lambda e: e.order)
 
 
-class EpisodeArrays(Mapping[str, np.ndarray]):
-    """All arrays of one episode by name (``"hidden"``, ``"image"``, ``"world/pos"``...), read on first access."""
+class StoredEpisode(Mapping[str, np.ndarray]):
+    """One stored episode: its arrays by name (``"hidden"``, ``"image"``, ``"world/pos"``...), each read on first
+    access, and the typed schema (:attr:`info`, :attr:`attributes`, :meth:`steps`, :meth:`records`)."""
 
     def __init__(self, group: zarr.Group) -> None:
         self._group = group
@@ -180,8 +185,29 @@ class EpisodeArrays(Mapping[str, np.ndarray]):
 
     @property
     def attrs(self) -> JsonObject:
-        """The episode group's attributes (the :class:`EpisodeInfo` fields, instruction, scene...)."""
+        """The episode group's attributes as stored JSON (the :class:`EpisodeInfo` fields, instruction, scene...)."""
         return dict(self._group.attrs)
+
+    @property
+    def info(self) -> EpisodeInfo:
+        return EpisodeInfo.from_attrs(self._group.attrs)
+
+    @property
+    def attributes(self) -> EpisodeAttrs:
+        """The episode's attributes besides :attr:`info`, typed."""
+        return EpisodeAttrs.from_json(self._group.attrs)
+
+    def steps(self) -> EpisodeSteps:
+        """Every per-step column (reads them all)."""
+        return EpisodeSteps.from_arrays(self)
+
+    def records(self) -> Iterator[StepRecord]:
+        """The rows as the step loop's :class:`~vlaprobe.rollout.StepRecord` (what is not stored is None)."""
+        return stored_records(self, self.info.success_step)
+
+
+EpisodeArrays = StoredEpisode
+"""The name of :class:`StoredEpisode` before the typed schema."""
 
 
 class ActivationStore:
@@ -277,19 +303,19 @@ class ActivationStore:
         step = np.concatenate([np.arange(n, dtype=np.int32) for n in lengths]) if infos else position.copy()
         return position, step
 
-    def episode(self, key: str) -> EpisodeArrays:
-        """Every array of one episode, each read when first accessed."""
+    def episode(self, key: str) -> StoredEpisode:
+        """One episode: its arrays (each read when first accessed) and its typed schema."""
         self._resolve([key])
-        return EpisodeArrays(self._root[f"episodes/{key}"])
+        return StoredEpisode(self._root[f"episodes/{key}"])
 
     def iter_episodes(
         self, success_only: bool = False, episodes: Sequence[str] | None = None
-    ) -> Iterator[tuple[EpisodeInfo, EpisodeArrays]]:
+    ) -> Iterator[tuple[EpisodeInfo, StoredEpisode]]:
         """One episode at a time (lazily read), never the whole store in memory."""
         infos = self._resolve(episodes) if episodes is not None else self.episodes(success_only)
         for info in infos:
             if info.success or not success_only:
-                yield info, EpisodeArrays(self._root[f"episodes/{info.key}"])
+                yield info, StoredEpisode(self._root[f"episodes/{info.key}"])
 
     def failures(self) -> list[EpisodeInfo]:
         """Tried units whose failed episode was not kept (their markers)."""
