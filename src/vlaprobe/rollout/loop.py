@@ -20,7 +20,7 @@ import numpy as np
 
 from vlaprobe.envs.base import Observation, TaskEnv
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.policies.base import VLAPolicy
+from vlaprobe.policies.base import PolicyStep, VLAPolicy
 from vlaprobe.rollout.drivers import Driver
 from vlaprobe.symbols import WorldState
 
@@ -160,6 +160,38 @@ def _ms(start: float) -> float:
     return (time.perf_counter() - start) * 1000.0
 
 
+def _record(
+    t: int,
+    obs: Observation,
+    out: PolicyStep,
+    world: WorldState,
+    atoms: tuple[np.ndarray, np.ndarray],
+    action: np.ndarray,
+    terminal: bool,
+    perturbation: str,
+    timings: StepTimings,
+) -> StepRecord:
+    return StepRecord(
+        t=t,
+        step=obs.step,
+        raw_image=obs.image,
+        model_image=out.model_image,
+        hidden=out.hidden,
+        object_atoms=atoms[0],
+        action_atoms=atoms[1],
+        world=world,
+        proprio=obs.proprio,
+        action=action,
+        predicted_action=out.action,
+        action_tokens=out.action_tokens,
+        success=obs.success,
+        terminal=terminal,
+        perturbed=bool(perturbation),
+        perturbation=perturbation,
+        timings=timings,
+    )
+
+
 def run_episode(
     env: TaskEnv,
     policy: VLAPolicy,
@@ -221,30 +253,15 @@ def run_episode(
                 action[6] = GRIPPER_OPEN
                 perturbation, perturbed_any = "drop", True
         t3 = time.perf_counter()
-        yield StepRecord(
-            t=t,
-            step=obs.step,
-            raw_image=obs.image,
-            model_image=out.model_image,
-            hidden=out.hidden,
-            object_atoms=object_atoms,
-            action_atoms=action_atoms,
-            world=world,
-            proprio=obs.proprio,
-            action=action,
-            predicted_action=out.action,
-            action_tokens=out.action_tokens,
-            success=obs.success,
-            terminal=terminal,
-            perturbed=bool(perturbation),
-            perturbation=perturbation,
-            timings=StepTimings(
-                env_ms=env_ms,
-                label_ms=(t1 - t0) * 1e3,
-                model_ms=(t2 - t1) * 1e3,
-                driver_ms=(t3 - t2) * 1e3,
-                total_ms=env_ms + (t3 - t0) * 1e3,
-            ),
+        timings = StepTimings(
+            env_ms=env_ms,
+            label_ms=(t1 - t0) * 1e3,
+            model_ms=(t2 - t1) * 1e3,
+            driver_ms=(t3 - t2) * 1e3,
+            total_ms=env_ms + (t3 - t0) * 1e3,
+        )
+        yield _record(
+            t, obs, out, world, (object_atoms, action_atoms), action, terminal, perturbation, timings
         )
         if terminal:
             return
