@@ -9,7 +9,6 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 
 @dataclass(frozen=True)
@@ -26,11 +25,12 @@ class Command:
     def config_class(self) -> type:
         return _resolve(self.config)
 
-    def function(self) -> Callable[[Any], Any]:
-        return _resolve(self.target)
+    def function(self) -> Callable[[object], object]:
+        """The command's entry ``(config) -> exit status``."""
+        return _resolve(self.target)  # type: ignore[return-value]
 
 
-def _resolve(spec: str) -> Any:
+def _resolve(spec: str) -> object:
     module, name = spec.split(":")
     return getattr(importlib.import_module(module), name)
 

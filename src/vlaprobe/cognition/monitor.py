@@ -16,13 +16,13 @@ import math
 from collections import Counter
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from vlaprobe.cognition.core import Cognition, CognitionStep
 from vlaprobe.cognition.readout import HEADS, ProbeReadout
-from vlaprobe.configs.monitor import MonitorConfig
+from vlaprobe.configs.monitor import CognitionConfig, MonitorConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject, write_atomic
 
@@ -197,7 +197,7 @@ def _pair(
     key: str,
     label: str,
     readout: ProbeReadout,
-    ccfg: Any,
+    ccfg: CognitionConfig,
     cogs: dict,
     mask: np.ndarray,
 ) -> _Pair:

@@ -23,10 +23,11 @@ import os
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from types import EllipsisType
 
 import numpy as np
 import zarr
+from numpy.typing import DTypeLike
 
 from vlaprobe.collection.episode import EpisodeAttrs, EpisodeSteps, stored_records
 from vlaprobe.errors import VlaprobeError
@@ -254,7 +255,12 @@ class ActivationStore:
         return self._arrays[key, name]
 
     def _concat(
-        self, infos: list[EpisodeInfo], name: str, index: Any, trailing: tuple[int, ...], dtype: Any
+        self,
+        infos: list[EpisodeInfo],
+        name: str,
+        index: int | EllipsisType,
+        trailing: tuple[int, ...],
+        dtype: DTypeLike,
     ) -> np.ndarray:
         """``array[index]`` of every episode, stacked along steps into one preallocated matrix."""
         out = np.empty((sum(e.length for e in infos), *trailing), dtype=dtype)

@@ -17,7 +17,6 @@ from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import zarr
@@ -77,12 +76,12 @@ def _fsync_tree(folder: Path) -> None:
         list(pool.map(_fsync, paths))
 
 
-def _short(value: Any) -> str:
+def _short(value: Json) -> str:
     text = json.dumps(value, sort_keys=True, default=str)
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-def _difference(old: Any, new: Any, where: str) -> str | None:
+def _difference(old: Json, new: Json, where: str) -> str | None:
     """The first path at which two JSON-like values differ, with both values; None if equal."""
     if isinstance(old, dict) and isinstance(new, dict):
         for k in sorted(set(old) | set(new), key=str):
@@ -101,7 +100,7 @@ def _difference(old: Any, new: Any, where: str) -> str | None:
     return None
 
 
-def _jsonable(value: Any) -> Any:
+def _jsonable(value: object) -> Json:
     """``value`` as it reads back from JSON (tuples become lists...), so comparisons are like for like."""
     return json.loads(json.dumps(value, default=str))
 
@@ -202,7 +201,7 @@ class StoreWriter:
         infos = list_infos(self.path / "failures") + list_infos(self.path / "episodes")
         return {e.key: e for e in infos}
 
-    def update_meta(self, **fields: Any) -> None:
+    def update_meta(self, **fields: Json) -> None:
         """Set metadata fields (e.g. the list of runs); the root metadata file is replaced atomically."""
         self.meta = {**self.meta, **_jsonable(fields)}
         root = zarr.open_group(zarr.storage.LocalStore(self.path), mode="r+")

@@ -18,13 +18,12 @@ import json
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
 
 import dacite
 import numpy as np
 
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import JsonObject, write_atomic
+from vlaprobe.files import Json, JsonObject, write_atomic
 
 FORMAT = "vlaprobe-evaluation"
 FORMAT_VERSION = 3
@@ -42,7 +41,7 @@ PARTS = (
 )
 """The metric summaries a head may have, in display order."""
 
-Nested = list[Any]
+Nested = list[Json]
 """A JSON array of any depth: floats, ints or None (NaN)."""
 
 
@@ -263,7 +262,7 @@ class Evaluation:
 # -- conversions -------------------------------------------------------------------------------------------
 
 
-def nested(x: Any) -> Nested:
+def nested(x: object) -> Nested:
     """A float array as nested lists, NaN -> None, rounded to 5 decimals (ints and bools as they are)."""
     a = np.asarray(x)
     if a.dtype.kind in "iub":
@@ -272,7 +271,7 @@ def nested(x: Any) -> Nested:
     return np.where(np.isnan(rounded), None, rounded).tolist()
 
 
-def number(x: Any) -> float | None:
+def number(x: object) -> float | None:
     """One float rounded to 5 decimals, NaN -> None."""
     x = float(x)
     return None if math.isnan(x) else round(x, 5)

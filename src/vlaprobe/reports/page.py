@@ -6,11 +6,10 @@ import base64
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import jinja2
 
-from vlaprobe.files import JsonObject
+from vlaprobe.files import Json, JsonObject
 from vlaprobe.probes.results import Evaluation
 from vlaprobe.reports.figures import metric_label
 from vlaprobe.reports.sections import Section
@@ -46,7 +45,7 @@ class Figure:
         return base64.b64encode(self.png).decode()
 
 
-def _fmt(value: Any, ci: Any = None, sd: Any = None) -> str:
+def _fmt(value: Json, ci: Json = None, sd: Json = None) -> str:
     """A figure with its interval and spread, as HTML-safe text ("–" when undefined)."""
     if value is None:
         return "–"

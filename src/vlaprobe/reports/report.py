@@ -22,13 +22,12 @@ import io
 import json
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from vlaprobe.configs.checks import REPORT_FOLDER, check_report
 from vlaprobe.configs.report import ReportConfig
-from vlaprobe.files import JsonObject, check_owned_folder, mark_folder, write_atomic
+from vlaprobe.files import Json, JsonObject, check_owned_folder, mark_folder, write_atomic
 from vlaprobe.probes.results import PARTS, Evaluation, HeadResult, arr, read_evaluation
 from vlaprobe.reports.figures import Rendered, Series, curves, heatmap, metric_label
 from vlaprobe.reports.page import Figure, render_page
@@ -163,7 +162,7 @@ def _num(v: float | None) -> str:
 # -- data of the figures -------------------------------------------------------------------------------
 
 
-def _list(x: np.ndarray | None) -> Any:
+def _list(x: np.ndarray | None) -> Json:
     if x is None:
         return None
     a = np.round(np.asarray(x, float), 5)
@@ -266,7 +265,7 @@ def _curve_data(
     return panels, rows
 
 
-def _at(values: list[Any], index: tuple[int, ...]) -> Any:
+def _at(values: list[Json], index: tuple[int, ...]) -> Json:
     for k in index:
         values = values[k]
     return values

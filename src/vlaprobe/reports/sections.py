@@ -11,7 +11,6 @@ from __future__ import annotations
 import importlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 
 @dataclass
@@ -24,7 +23,7 @@ class Section:
     """The section's heading."""
     template: str
     """Template file name under the ``templates/`` folder of :attr:`package`; it sees ``section`` and ``data``."""
-    data: Any
+    data: object
     """What the template renders (a dataclass or the JSON of a file of the run)."""
     package: str = "vlaprobe.reports"
     """The package whose ``templates/`` folder holds :attr:`template` (a section ships its template with it)."""

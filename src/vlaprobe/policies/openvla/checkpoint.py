@@ -12,12 +12,11 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
 
 import torch
 
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import JsonObject, write_atomic
+from vlaprobe.files import Json, JsonObject, write_atomic
 from vlaprobe.policies.openvla.config import OpenVLAConfig, from_official, to_official
 from vlaprobe.policies.openvla.model import OpenVLA
 
@@ -25,7 +24,7 @@ FORMAT_VERSION = 1
 """Version of the ``"vlaprobe"`` block in config.json."""
 
 
-def _read_json(path: Path) -> Any:
+def _read_json(path: Path) -> Json:
     try:
         return json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:

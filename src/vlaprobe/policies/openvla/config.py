@@ -10,7 +10,6 @@ from __future__ import annotations
 import dataclasses
 import json
 from dataclasses import dataclass, field
-from typing import Any
 
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject
@@ -19,7 +18,7 @@ SUPPORTED_VISION_BACKBONE = "dinosiglip-vit-so-224px"
 """The only vision backbone id every released OpenVLA checkpoint uses (DINOv2 + SigLIP, 224 px)."""
 
 
-def _check_dims(cfg: Any, names: tuple[str, ...]) -> None:
+def _check_dims(cfg: object, names: tuple[str, ...]) -> None:
     """Model sizes read from a checkpoint's config.json must be positive integers (one-line error)."""
     for name in names:
         value = getattr(cfg, name)
