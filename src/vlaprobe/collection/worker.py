@@ -8,7 +8,6 @@ row all belong to the same timestep. The episode is handed back whole; the paren
 from __future__ import annotations
 
 import hashlib
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -26,7 +25,7 @@ from vlaprobe.files import JsonObject
 from vlaprobe.policies.base import VLAPolicy
 from vlaprobe.rollout import EnvCache, EpisodeControl, EpisodeRunner, StepRecord, make_driver
 from vlaprobe.rollout.perturb import KIND_CODE, Perturber, PerturbSpec
-from vlaprobe.rollout.runner import MakeDriver
+from vlaprobe.rollout.runner import MakeDriver, default_threads
 from vlaprobe.symbols.vocabulary import atom
 
 
@@ -79,13 +78,6 @@ def _suite_tasks(cfg: EnvConfig) -> dict[int, str]:
     from vlaprobe.envs.libero import suite_tasks
 
     return dict(suite_tasks(cfg.suite))
-
-
-def default_threads(workers: int) -> int:
-    """Torch threads per worker: half of its share of the cores. The simulator and the software renderer run
-    in the same process; with every core given to torch, its OpenMP threads spin while the simulator steps
-    (measured on 2 busy cores: the tiny model's step took 2.2 s with 2 threads, 0.25 s with 1)."""
-    return max(1, (os.cpu_count() or 1) // (2 * workers))
 
 
 MakeEnv = Callable[[int, EnvConfig], TaskEnv]

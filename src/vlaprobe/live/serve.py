@@ -30,7 +30,7 @@ from vlaprobe.live.pipeline import HEADS, EpisodeSpec, MakeCognition, Reading, S
 from vlaprobe.live.replay import StoreReplays
 from vlaprobe.live.sources import Simulator, StoreEpisodes
 from vlaprobe.policies.base import VLAPolicy
-from vlaprobe.rollout.runner import MakeDriver
+from vlaprobe.rollout.runner import MakeDriver, default_threads
 from vlaprobe.symbols import Goal
 
 if TYPE_CHECKING:
@@ -150,7 +150,6 @@ def build_engine(
     if policy is None:
         import torch
 
-        from vlaprobe.collection.worker import default_threads
         from vlaprobe.configs.policy import PolicyConfig
         from vlaprobe.policies import make_policy
 
