@@ -115,7 +115,7 @@ def store_diversity(path: object, success_only: bool = False) -> Diversity:
     for info in store.episodes(success_only=success_only):
         arrays = store.episode(info.key)
         episodes.append({head: np.asarray(arrays[ATOM_ARRAYS[head]]) for head in names})
-        perturbed += bool(arrays.attrs.get("perturbations"))
+        perturbed += bool(arrays.attributes.perturbations)
     return diversity(names, episodes, perturbed)
 
 

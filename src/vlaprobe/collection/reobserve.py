@@ -85,7 +85,7 @@ def reobserve(source: str | Path, out: str | Path, cfg: PolicyConfig, batch: int
             if "image" not in ep:
                 raise VlaprobeError(f"episode {info.key} of {source} has no images; re-collect it")
             arrays = {name: ep[name] for name in ep if name not in SOURCE_ONLY}
-            arrays["hidden"] = episode_hidden(policy, ep["image"], ep.attrs["instruction"], batch)
+            arrays["hidden"] = episode_hidden(policy, ep["image"], ep.attributes.instruction, batch)
             attrs = {k: v for k, v in ep.attrs.items() if k not in EPISODE_KEYS}
             writer.write_episode(info, arrays, attrs)
             added.append(info.key)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vlaprobe.collection.store import ActivationStore, EpisodeArrays, EpisodeInfo
+from vlaprobe.collection.store import ActivationStore, EpisodeInfo, StoredEpisode
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject
 from vlaprobe.policies.openvla.actions import training_gripper
@@ -70,8 +70,8 @@ class Split:
     """Episode indices held out."""
 
 
-def _instruction(store: ActivationStore, info: EpisodeInfo, arrays: EpisodeArrays) -> str:
-    text = arrays.attrs.get("instruction") or (store.meta.get("instructions") or {}).get(str(info.task))
+def _instruction(store: ActivationStore, info: EpisodeInfo, arrays: StoredEpisode) -> str:
+    text = arrays.attributes.instruction or (store.meta.get("instructions") or {}).get(str(info.task))
     if not text:
         raise VlaprobeError(
             f"store {store.path}: episode {info.key} has no instruction; collect it again with this vlaprobe"
