@@ -221,6 +221,8 @@ class ActivationStore:
         self.hidden_size: int = int(meta["hidden_size"])
         self.pooling: str = str(meta["pooling"])
         self.model_id: str = str(meta["model_id"])
+        self.created: str = str(meta.get("created", ""))
+        """When the store was created (ISO 8601; "" in stores that do not say)."""
         self.atom_names: dict[str, list[str]] = {h: list(v) for h, v in meta["atom_names"].items()}
         self._infos = list_infos(path / "episodes")
         self._by_key = {e.key: e for e in self._infos}

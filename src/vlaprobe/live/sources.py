@@ -156,7 +156,7 @@ class StoreEpisodes:
         self._verified: set[str] = set()
         names = self.store.atom_names
         self.atoms = {"object": list(names["object"]), "action": list(names["action"])}
-        self.created = str(self.store.meta.get("created", ""))
+        self.created = self.store.created
 
     def list(self) -> list[P.EpisodeListItem]:
         out = []
