@@ -151,12 +151,12 @@ def _run(cog: Cognition, obj: np.ndarray, act: np.ndarray) -> _Run:
 
 
 def _episodes(cfg: MonitorConfig, store: ActivationStore, probes: ProbeSet) -> tuple[list[str], bool]:
-    from vlaprobe.probes.results import read_evaluation
+    from vlaprobe.probes.results import read_test_episodes
 
     keys = [e.key for e in store.episodes()]
     if cfg.all_episodes:
         return keys, False
-    test = read_evaluation(cfg.probes).split.test_episodes
+    test = read_test_episodes(cfg.probes)
     chosen = [k for k in test if k in set(keys)]
     if not chosen:
         raise VlaprobeError(
