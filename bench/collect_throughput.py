@@ -48,10 +48,10 @@ def main() -> None:
     args = parser.parse_args()
 
     from vlaprobe.collection.collect import collect
-    from vlaprobe.collection.worker import default_threads
     from vlaprobe.configs.collect import CollectConfig
     from vlaprobe.configs.env import EnvConfig
     from vlaprobe.configs.policy import PolicyConfig
+    from vlaprobe.rollout.runner import default_threads
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "store"

@@ -73,7 +73,9 @@ def parity(store: str, layers: tuple[int, ...]) -> dict[str, dict[str, float | i
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("store", help="activation store (vlaprobe collect --out)")
-    parser.add_argument("--layers", type=int, nargs="*", default=[], help="hidden-state indices (default: all)")
+    parser.add_argument(
+        "--layers", type=int, nargs="*", default=[], help="hidden-state indices (default: all)"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     start = time.perf_counter()
@@ -82,7 +84,9 @@ def main() -> int:
     except VlaprobeError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    print(json.dumps({"store": args.store, "heads": result, "seconds": round(time.perf_counter() - start, 1)}))
+    print(
+        json.dumps({"store": args.store, "heads": result, "seconds": round(time.perf_counter() - start, 1)})
+    )
     return 0
 
 

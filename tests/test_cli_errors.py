@@ -507,8 +507,8 @@ def test_sampled_inits_of_a_task_whose_regions_cannot_be_sampled(
     assert "use --inits fixed" in err and not out.exists()
     # the same tasks pass the check with LIBERO's own BDDL files
     monkeypatch.setattr(libero, "task_problem", real)
-    from vlaprobe.configs.checks import check_inits
     from vlaprobe.configs.env import EnvConfig
+    from vlaprobe.envs.checks import check_inits
 
     check_inits(EnvConfig(inits="sampled"), ())
 

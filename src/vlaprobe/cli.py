@@ -21,7 +21,7 @@ from typing import Annotated, Any
 import tyro
 
 from vlaprobe.commands import COMMANDS, Command
-from vlaprobe.configs.checks import precheck
+from vlaprobe.envs.checks import precheck
 from vlaprobe.errors import VlaprobeError
 
 CONFIG_HELP = (

@@ -9,7 +9,6 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 
 @dataclass(frozen=True)
@@ -26,11 +25,12 @@ class Command:
     def config_class(self) -> type:
         return _resolve(self.config)
 
-    def function(self) -> Callable[[Any], Any]:
-        return _resolve(self.target)
+    def function(self) -> Callable[[object], object]:
+        """The command's entry ``(config) -> exit status``."""
+        return _resolve(self.target)  # type: ignore[return-value]
 
 
-def _resolve(spec: str) -> Any:
+def _resolve(spec: str) -> object:
     module, name = spec.split(":")
     return getattr(importlib.import_module(module), name)
 
@@ -45,7 +45,7 @@ COMMANDS: dict[str, Command] = {
     "hypotheses": Command("vlaprobe.configs.hypotheses:HypothesesConfig", "vlaprobe.probes.hypotheses_run:main", "H1/H2: best, earliest and steepest layer per head; object-action differences with bootstrap intervals."),
     "compare-splits": Command("vlaprobe.configs.hypotheses:CompareSplitsConfig", "vlaprobe.probes.cross_task:main", "Within-task vs leave-one-task-out probes of one store, predicate by predicate."),
     "compare-stores": Command("vlaprobe.configs.stores:CompareStoresConfig", "vlaprobe.probes.store_compare:main", "Stores side by side: task and task x time baselines, distinct states, atoms varying within episodes."),
-    "report": Command("vlaprobe.configs.report:ReportConfig", "vlaprobe.reports.report:main", "Write the heatmap, curves and HTML page."),
+    "report": Command("vlaprobe.configs.report:ReportConfig", "vlaprobe.pipeline:report_main", "Write the heatmap, curves and HTML page."),
     "monitor": Command("vlaprobe.configs.monitor:MonitorConfig", "vlaprobe.cognition.monitor:main", "Run the cognition (beliefs, rules, subgoals) on stored episodes: truth vs probe predictions."),
     "model-info": Command("vlaprobe.configs.policy:ModelInfoConfig", "vlaprobe.policies.openvla.commands:model_info", "Load a VLA policy and print its description (with --step: one timed step) as JSON."),
     "serve": Command("vlaprobe.configs.serve:ServeConfig", "vlaprobe.live.serve:main", "Live monitor: stream episodes (simulator, model, probes, cognition) over a WebSocket; record and replay."),

@@ -1,4 +1,4 @@
-"""Small shared file helpers: atomic writes, and the package versions recorded with every output."""
+"""Small shared file helpers: atomic writes, the package versions recorded with every output, JSON types."""
 
 from __future__ import annotations
 
@@ -9,6 +9,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
+from typing import Any, TypeAlias
+
+Json: TypeAlias = Any
+"""A JSON value as ``json.loads`` returns it (object, list, string, number, bool, null). Only at the edges: files
+of a store, a run or a checkpoint, config files and the wire; what one package hands another is a dataclass."""
+JsonObject: TypeAlias = dict[str, Json]
+"""A JSON object (a file's metadata, a config written as JSON, a record of a metrics log)."""
 
 # Packages whose versions shape recorded data, probes and reports.
 VERSIONED = ("torch", "numpy", "zarr", "mujoco", "robosuite", "libero", "transformers", "ray")

@@ -9,9 +9,27 @@ from pathlib import Path
 
 from vlaprobe.configs import config_to_dict
 from vlaprobe.configs.checks import REPORT_FOLDER, RUN_FOLDER, check_run
+from vlaprobe.configs.report import ReportConfig
 from vlaprobe.configs.run import RunConfig
+from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import check_owned_folder, mark_folder, write_atomic
 from vlaprobe.probes.outfolder import check_probe_folder
+
+
+def check_run_suite(cfg: RunConfig) -> None:
+    """What ``check_run`` cannot see from the config alone: the collection's suite checks, and enough
+    episodes for the split's folds."""
+    from vlaprobe.collection.collect import check_collect_suite
+    from vlaprobe.envs.libero import suite_tasks
+
+    c = cfg.collect
+    check_collect_suite(c, "collect.")
+    episodes = len(c.tasks or suite_tasks(c.env.suite)) * c.episodes_per_task
+    if cfg.train.split.folds > episodes and not c.keep_failed:
+        raise VlaprobeError(
+            f"--train.split.folds {cfg.train.split.folds} needs at least that many episodes; this run keeps "
+            f"{episodes}: lower --train.split.folds or collect more"
+        )
 
 
 def stage_configs(cfg: RunConfig) -> RunConfig:
@@ -53,9 +71,9 @@ def run(cfg: RunConfig) -> Path:
     from vlaprobe.cognition.monitor import monitor
     from vlaprobe.collection.collect import collect
     from vlaprobe.probes.train import train_probes
-    from vlaprobe.reports.report import write_report
 
     check_run(cfg)
+    check_run_suite(cfg)
     check_owned_folder(cfg.out, RUN_FOLDER)
     cfg = stage_configs(cfg)
     check_probe_folder(cfg.train.out, "--out")
@@ -74,7 +92,7 @@ def run(cfg: RunConfig) -> Path:
     monitor(cfg.monitor)
     t2 = time.perf_counter()
     print(f"[4/4] report → {cfg.report.out}", flush=True)
-    page = write_report(cfg.report)
+    page = report(cfg.report)
     t3 = time.perf_counter()
     # Written once every stage has succeeded: a rejected or failed run leaves the last good config in place.
     config_path = _save_config(cfg)
@@ -82,6 +100,21 @@ def run(cfg: RunConfig) -> Path:
         f"times: collect {t1 - t0:.0f} s, train + monitor {t2 - t1:.0f} s, report {t3 - t2:.0f} s; config: {config_path}"
     )
     return page
+
+
+def report(cfg: ReportConfig) -> Path:
+    """``vlaprobe report``: the report page with the cognition monitor's section when the probe folder has one."""
+    from vlaprobe.cognition.monitor import report_section
+    from vlaprobe.reports.report import write_report
+
+    section = report_section(Path(cfg.probes))
+    return write_report(cfg, sections=[section] if section is not None else [])
+
+
+def report_main(cfg: ReportConfig) -> int:
+    """CLI entry of ``vlaprobe report``: write the report and print where it is."""
+    print(f"report written to {report(cfg)}")
+    return 0
 
 
 def main(cfg: RunConfig) -> int:

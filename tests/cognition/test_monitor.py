@@ -17,9 +17,9 @@ from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.configs.monitor import MonitorConfig
 from vlaprobe.configs.report import ReportConfig
 from vlaprobe.configs.train import ProbeConfig, TrainConfig
+from vlaprobe.pipeline import report
 from vlaprobe.probes import synthetic_data, train_on_data
 from vlaprobe.probes.probeset import FORMAT, FORMAT_VERSION, ProbeSet
-from vlaprobe.reports import write_report
 
 SETTLING = frozenset({f"should-move-towards({PLATE})"})
 STEPS = [APPROACH] * 6 + [CARRY] * 6 + [SETTLING] * 2 + [PLACED] * 6
@@ -164,7 +164,7 @@ def test_the_report_shows_the_monitor_section(run: tuple[Path, Path], tmp_path: 
     section = report_section(report_probes)  # what the report's section provider finds in a probe folder
     assert section is not None and section.id == "cognition" and section.data["steps"] == result.steps
 
-    page = write_report(ReportConfig(probes=report_probes, dpi=20)).read_text()
+    page = report(ReportConfig(probes=report_probes, dpi=20)).read_text()
     start = page.index("<h2 id='cognition'>Cognition: beliefs, rules and subgoals</h2>")
     html = page[start : page.index("<h2 id=", start + 1)]
     assert html.count("<table>") == 3 and all(rule in html for rule in result.truth.violations)

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from vlaprobe.collection.worker import Worker
-from vlaprobe.envs.libero import Observation
+from vlaprobe.envs.base import Observation
 from vlaprobe.rollout import PolicyDriver
 from vlaprobe.symbols import Articulation, Goal, Labeler, Scene, WorldState
 

@@ -25,9 +25,9 @@ from tests.collection.fakes import (
 )
 
 from vlaprobe.collection.collect import collect
+from vlaprobe.collection.episode import stored_scene, world_states
 from vlaprobe.collection.info import info
 from vlaprobe.collection.store import ActivationStore
-from vlaprobe.collection.worker import stored_scene, world_states
 from vlaprobe.configs import config_to_dict
 from vlaprobe.configs.collect import CollectConfig, InfoConfig
 from vlaprobe.configs.env import EnvConfig

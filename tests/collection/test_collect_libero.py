@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from vlaprobe.collection.collect import collect
+from vlaprobe.collection.episode import stored_scene, world_states
 from vlaprobe.collection.store import ActivationStore
-from vlaprobe.collection.worker import stored_scene, world_states
 from vlaprobe.configs.collect import CollectConfig
 from vlaprobe.configs.env import EnvConfig
 from vlaprobe.configs.policy import PolicyConfig

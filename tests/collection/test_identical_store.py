@@ -23,8 +23,8 @@ from tests.collection.test_collect import config
 
 import vlaprobe
 from vlaprobe.collection.collect import collect
+from vlaprobe.collection.episode import stored_scene, world_states
 from vlaprobe.collection.store import ActivationStore
-from vlaprobe.collection.worker import stored_scene, world_states
 from vlaprobe.symbols import Labeler
 
 DATA = Path(__file__).parent / "data"

@@ -20,6 +20,7 @@ from vlaprobe.configs.policy import PolicyConfig
 from vlaprobe.configs.report import ReportConfig
 from vlaprobe.configs.train import ProbeConfig, SplitConfig, TrainConfig
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.pipeline import report_main
 from vlaprobe.probes import ProbeSet, load_store, synthetic_data
 from vlaprobe.probes import train as train_module
 from vlaprobe.probes.evaluate import column_groups
@@ -104,7 +105,7 @@ def test_store_to_probes_to_report(tmp_path: Path, capsys: pytest.CaptureFixture
         ev["controls"]["observer"]["model_id"] == "random-init"
         and ev["controls"]["observer"]["same_episodes"]
     )
-    assert report_module.main(ReportConfig(probes=out, dpi=50)) == 0
+    assert report_main(ReportConfig(probes=out, dpi=50)) == 0
     assert (tmp_path / "report" / "index.html").is_file()
     assert "report written to" in capsys.readouterr().out
     with pytest.raises(VlaprobeError, match="not 'openvla-7b'"):

@@ -14,8 +14,9 @@ from vlaprobe.cli import main
 from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.configs.stores import CompareStoresConfig
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.probes.store_compare import compare_stores, report_section
+from vlaprobe.probes.store_compare import compare_stores
 from vlaprobe.reports.page import _environment
+from vlaprobe.reports.sections import store_comparison_section
 
 LENGTH = 20  # two rows per decile of episode time
 Atoms = Callable[[int, np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -84,7 +85,7 @@ def test_command_writes_the_report_section(
     assert "fixed:" in out and "minus fixed: majority +0.000" in out and "task_time -0.500" in out
     saved = json.loads((probes / "store_comparison.json").read_text())
     assert [s["name"] for s in saved["stores"]] == ["fixed", "sampled"]
-    section = report_section(probes)
+    section = store_comparison_section(probes)
     assert section is not None and section.template == "store_comparison.html"
     html = _environment().get_template(section.template).render(section=section, data=section.data)
     assert 'id="stores-section"' in html and "-0.500 [-0.500, -0.500]" in html

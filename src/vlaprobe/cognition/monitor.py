@@ -16,19 +16,19 @@ import math
 from collections import Counter
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from vlaprobe.cognition.core import Cognition, CognitionStep
 from vlaprobe.cognition.readout import HEADS, ProbeReadout
-from vlaprobe.configs.monitor import MonitorConfig
+from vlaprobe.configs.monitor import CognitionConfig, MonitorConfig
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import write_atomic
-from vlaprobe.symbols.world import Goal
+from vlaprobe.files import JsonObject, write_atomic
 
 if TYPE_CHECKING:
     from vlaprobe.collection.store import ActivationStore
+    from vlaprobe.probes.probeset import ProbeSet
     from vlaprobe.reports.sections import Section
 
 MONITOR_FILE = "monitor.json"
@@ -107,7 +107,7 @@ class MonitorResult:
     rules: list[str]
     per_episode: list[EpisodeFigures]
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> JsonObject:
         """The figures of the issue's JSON: episodes, steps, truth, probes."""
         return {
             "episodes": self.episodes,
@@ -116,7 +116,7 @@ class MonitorResult:
             "probes": asdict(self.probes),
         }
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> JsonObject:
         return {"format": "vlaprobe-monitor", "format_version": 2, **asdict(self)}
 
 
@@ -150,28 +150,20 @@ def _run(cog: Cognition, obj: np.ndarray, act: np.ndarray) -> _Run:
     return _Run(steps, beliefs)
 
 
-def _episodes(
-    cfg: MonitorConfig, store: ActivationStore, probes_meta: dict[str, Any]
-) -> tuple[list[str], bool]:
+def _episodes(cfg: MonitorConfig, store: ActivationStore, probes: ProbeSet) -> tuple[list[str], bool]:
+    from vlaprobe.probes.results import read_test_episodes
+
     keys = [e.key for e in store.episodes()]
     if cfg.all_episodes:
         return keys, False
-    path = cfg.probes / EVALUATION_FILE
-    try:
-        test = json.loads(path.read_text())["split"]["test_episodes"]
-    except (OSError, ValueError, KeyError, TypeError):
-        raise VlaprobeError(
-            f"cannot read the held-out test episodes from {path}; pass the folder written by vlaprobe train, "
-            "or --all-episodes"
-        ) from None
+    test = read_test_episodes(cfg.probes)
     chosen = [k for k in test if k in set(keys)]
     if not chosen:
         raise VlaprobeError(
             f"none of the probes' test episodes is in store {cfg.store}; pass the store the probes were "
             "trained on, or --all-episodes"
         )
-    refit = str(probes_meta.get("trained_on", {}).get("split", "")).startswith("all")
-    return chosen, not refit
+    return chosen, not probes.refit_on_all
 
 
 def _ratio(a: float, b: float) -> float | None:
@@ -205,17 +197,16 @@ def _pair(
     key: str,
     label: str,
     readout: ProbeReadout,
-    ccfg: Any,
+    ccfg: CognitionConfig,
     cogs: dict,
     mask: np.ndarray,
 ) -> _Pair:
     """Run one stored episode through the cognition on truth and on the probes' predictions."""
-    try:
-        goal = Goal(**store.episode(key).attrs["goal"])
-    except (KeyError, TypeError):
+    goal = store.episode(key).attributes.goal
+    if goal is None:
         raise VlaprobeError(
             f"episode {key} of store {label} records no task goal; collect it again with this vlaprobe"
-        ) from None
+        )
     names = (goal.pick, goal.place)
     if names not in cogs:
         obj_atoms, act_atoms = store.atom_names["object"], store.atom_names["action"]
@@ -298,7 +289,7 @@ def monitor(cfg: MonitorConfig) -> MonitorResult:
     store = ActivationStore.open(cfg.store)
     readout = ProbeReadout.load(cfg.probes, model_id=store.model_id)
     _check_store(store, readout, cfg.store)
-    keys, held_out = _episodes(cfg, store, readout.meta)
+    keys, held_out = _episodes(cfg, store, readout.probes)
     require_intact(cfg.store, read=True, keys=keys)  # a missing chunk would read as fill values
     sources = [(store, keys, str(cfg.store), "")]
     for path in cfg.extra_stores:
@@ -342,9 +333,9 @@ SECTION_ID, SECTION_TITLE, SECTION_TEMPLATE = (
 
 
 def report_section(probes: Path) -> Section | None:
-    """Section provider for the report (``vlaprobe.reports.sections``): the monitor's figures when
-    ``monitor.json`` is in the probe folder, else None. The report renders it (``templates/monitor_section.html``
-    through the page's template loader); this is the only way the section is rendered."""
+    """The report's cognition section (``write_report(cfg, sections=[...])``): the monitor's figures when
+    ``monitor.json`` is in the probe folder, else None. The report renders ``templates/monitor_section.html``
+    of this package; this is the only way the section is rendered."""
     path = Path(probes) / MONITOR_FILE
     if not path.is_file():
         return None
@@ -354,7 +345,9 @@ def report_section(probes: Path) -> Section | None:
         data = json.loads(path.read_text())
     except (OSError, ValueError):
         raise VlaprobeError(f"cannot read {path}; run vlaprobe monitor again") from None
-    return Section(id=SECTION_ID, title=SECTION_TITLE, template=SECTION_TEMPLATE, data=data)
+    return Section(
+        id=SECTION_ID, title=SECTION_TITLE, template=SECTION_TEMPLATE, data=data, package="vlaprobe.cognition"
+    )
 
 
 def main(cfg: MonitorConfig) -> int:

@@ -63,16 +63,16 @@ class ProbeReadout:
         missing = [h for h in HEADS if h not in probes.heads]
         if missing:
             raise VlaprobeError(
-                f"the probes in {probes.meta.get('path', 'this folder')} have no {missing[0]!r} head; the cognition "
+                f"the probes in {probes.where} have no {missing[0]!r} head; the cognition "
                 "needs both heads: train with --heads object action"
             )
-        self.meta = probes.meta
-        """The probes' metadata (probes.json)."""
+        self.probes = probes
+        """The probe set read."""
         self.threshold = probes.threshold
         self.pooling = probes.pooling
         self.model_id = probes.model_id
-        self.num_hidden_states = int(probes.meta["num_hidden_states"])
-        self.hidden_size = int(probes.meta["hidden_size"])
+        self.num_hidden_states = probes.num_hidden_states
+        self.hidden_size = probes.hidden_size
         self._heads = {h: self._pull(probes, h, layers.get(h)) for h in HEADS}
         self.layers: dict[str, int] = {h: self._heads[h].layer for h in HEADS}
         """Hidden-state index each head reads."""
@@ -90,8 +90,7 @@ class ProbeReadout:
 
     @staticmethod
     def _pull(probes: ProbeSet, head: str, layer: int | None) -> _Head:
-        info = probes.meta["heads"][head]
-        atoms = tuple(info.get("atom_names") or probes.atoms(head))
+        atoms = tuple(probes.atom_names(head))
         layer = probes.best_layer(head) if layer is None else int(layer)
         if layer not in probes.layers:
             raise VlaprobeError(
@@ -101,9 +100,9 @@ class ProbeReadout:
         position = {a: j for j, a in enumerate(atoms)}
         kept = np.array([position[a] for a in probes.atoms(head)], dtype=np.int64)
         majority = np.zeros(len(atoms), dtype=bool)
-        for d in info.get("dropped", []):
-            if d["atom"] in position:
-                majority[position[d["atom"]]] = float(d["train_frequency"]) >= 0.5
+        for atom, frequency in probes.dropped(head).items():
+            if atom in position:
+                majority[position[atom]] = frequency >= 0.5
         probed = np.zeros(len(atoms), dtype=bool)
         probed[kept] = True
         tensors = probes.tensors

@@ -15,13 +15,12 @@ import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
 
 from tqdm import tqdm
 
 from vlaprobe.collection.executors import Executor, MakeWorker, make_executor
 from vlaprobe.collection.plan import Plan, Unit
-from vlaprobe.collection.store import read_meta
+from vlaprobe.collection.store import EpisodeInfo, read_meta
 from vlaprobe.collection.verify import require_intact
 from vlaprobe.collection.worker import EpisodeResult, RunDescription, Worker, unit_seed
 from vlaprobe.collection.writer import StagedEpisode, StoreWriter, check_compatible
@@ -30,7 +29,7 @@ from vlaprobe.configs.checks import check_collect
 from vlaprobe.configs.collect import CollectConfig
 from vlaprobe.envs.setup import resolve_assets
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import check_output_folder, versions
+from vlaprobe.files import JsonObject, check_output_folder, versions
 from vlaprobe.rollout.perturb import PerturbSpec
 
 VOLATILE_MODEL_KEYS = ("device", "source")
@@ -61,6 +60,17 @@ class CollectResult:
     """Keys of the episodes this run added."""
 
 
+def check_collect_suite(cfg: CollectConfig, prefix: str = "") -> None:
+    """What ``check_collect`` cannot see from the config alone: the selected tasks exist in the suite, their
+    BDDL lets ``--inits sampled`` place the objects, and ``--perturb`` parses."""
+    from vlaprobe.envs.checks import check_inits, check_tasks
+    from vlaprobe.rollout.perturb import PerturbSpec
+
+    check_tasks(cfg.tasks, cfg.env.suite, f"--{prefix}tasks")
+    check_inits(cfg.env, cfg.tasks)
+    PerturbSpec.parse(cfg.perturb, f"--{prefix}perturb")
+
+
 def _validate(cfg: CollectConfig) -> None:
     """What collection needs beyond the range checks of ``check_collect``."""
     if not cfg.env.render:
@@ -69,7 +79,7 @@ def _validate(cfg: CollectConfig) -> None:
         raise VlaprobeError(f"--tasks lists a task twice: {list(cfg.tasks)}")
 
 
-def _env_meta(cfg: CollectConfig) -> dict[str, Any]:
+def _env_meta(cfg: CollectConfig) -> JsonObject:
     """Simulator settings that change the recorded data (the assets folder may move between machines)."""
     return {
         "image_size": cfg.env.image_size,
@@ -78,10 +88,10 @@ def _env_meta(cfg: CollectConfig) -> dict[str, Any]:
     }
 
 
-def _run_meta(cfg: CollectConfig) -> dict[str, Any]:
+def _run_meta(cfg: CollectConfig) -> JsonObject:
     """The settings an existing store must share, known before any model is loaded (sampled inits and
     perturbations only when used, so that stores of the defaults written before them still resume)."""
-    extra: dict[str, Any] = {"inits": cfg.env.inits} if cfg.env.inits != "fixed" else {}
+    extra: JsonObject = {"inits": cfg.env.inits} if cfg.env.inits != "fixed" else {}
     if cfg.perturb:
         extra["perturb"] = PerturbSpec.parse(cfg.perturb).text()
     return {
@@ -95,7 +105,7 @@ def _run_meta(cfg: CollectConfig) -> dict[str, Any]:
     }
 
 
-def _store_meta(cfg: CollectConfig, desc: RunDescription) -> dict[str, Any]:
+def _store_meta(cfg: CollectConfig, desc: RunDescription) -> JsonObject:
     model = {k: v for k, v in desc.model.items() if k not in VOLATILE_MODEL_KEYS}
     return {
         **_run_meta(cfg),
@@ -154,6 +164,7 @@ class _Progress:
 def collect(cfg: CollectConfig, make_worker: MakeWorker = Worker) -> CollectResult:
     """Collect episodes into ``cfg.out`` (see the module docstring). ``make_worker`` builds each worker."""
     check_collect(cfg)
+    check_collect_suite(cfg)
     _validate(cfg)
     start = time.perf_counter()
     out = Path(cfg.out)
@@ -220,7 +231,7 @@ def _loop(
 ) -> None:
     """Launch, wait, write, decide, until every task's prefix is known."""
     speculate = executor.capacity > 1
-    held: dict[Unit, tuple[EpisodeResult, StagedEpisode | None]] = {}
+    held: dict[Unit, tuple[EpisodeInfo, str, StagedEpisode | None]] = {}
     running = 0
     while not plan.complete():
         while running < executor.capacity and (unit := plan.next_unit(speculate)) is not None:
@@ -229,7 +240,11 @@ def _loop(
             running += 1
         if running == 0:  # the plan's invariants exclude it
             raise RuntimeError("collection plan stalled with nothing running")
-        for unit, episode in executor.wait():
+        finished = executor.wait()
+        while finished:
+            unit, episode = finished.pop(
+                0
+            )  # dropped after this pass: its buffers are freed before the next wait
             running -= 1
             result.episodes_run += 1
             result.steps += episode.info.length
@@ -238,19 +253,18 @@ def _loop(
             t0 = time.perf_counter()
             staged = None
             if episode.info.success or cfg.keep_failed:
-                staged = writer.stage(episode.info, episode.arrays, episode.attrs)
-            held[unit] = (episode, staged)
+                staged = writer.stage(episode.info, episode.steps.arrays(), episode.attrs.to_json())
+            held[unit] = (episode.info, episode.attrs.instruction, staged)
             for decided, keep in plan.finished(unit, episode.info.success):
-                done, staged_done = held.pop(decided)
+                done, instruction, staged_done = held.pop(decided)
                 if keep and staged_done is not None:
                     writer.publish(staged_done)
                     result.published.append(decided.key)
                 elif keep:
-                    writer.mark_failed(done.info, {"instruction": done.attrs["instruction"]})
+                    writer.mark_failed(done, {"instruction": instruction})
                 elif staged_done is not None:
                     writer.discard(staged_done)
             result.write_seconds += time.perf_counter() - t0
-            episode.arrays.clear()  # free the buffers before the next wait
             progress.finished(episode)
 
 

@@ -115,7 +115,7 @@ def store_diversity(path: object, success_only: bool = False) -> Diversity:
     for info in store.episodes(success_only=success_only):
         arrays = store.episode(info.key)
         episodes.append({head: np.asarray(arrays[ATOM_ARRAYS[head]]) for head in names})
-        perturbed += bool(arrays.attrs.get("perturbations"))
+        perturbed += bool(arrays.attributes.perturbations)
     return diversity(names, episodes, perturbed)
 
 
@@ -129,32 +129,3 @@ def summary_lines(d: Diversity) -> list[str]:
             f"{h.always_true} always true"
         )
     return lines
-
-
-def report_section(probes: object) -> object | None:
-    """Report section provider: the diversity of the store the probes were trained on (if it is still there)."""
-    import json
-    from pathlib import Path
-
-    from vlaprobe.reports.sections import Section
-
-    try:
-        meta = json.loads((Path(str(probes)) / "probes.json").read_text())
-        store = Path(meta["config"]["store"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-    if not (store / "zarr.json").is_file():
-        return None
-    d = store_diversity(store)
-    rows = [
-        {"head": head, "atom": a, "base_rate": r, "episodes_varying": n}
-        for head, h in d.heads.items()
-        for a, r, n in zip(h.atoms, h.base_rate, h.episodes_varying, strict=True)
-        if n > 0
-    ]
-    return Section(
-        id="diversity",
-        title="How diverse the data are",
-        template="diversity.html",
-        data={"summary": d.as_dict(), "store": str(store), "varying": rows},
-    )

@@ -6,20 +6,20 @@ import json
 import os
 from collections import defaultdict
 from pathlib import Path
-from typing import Any
 
 from vlaprobe.collection.diversity import store_diversity, summary_lines
 from vlaprobe.collection.store import ActivationStore
 from vlaprobe.collection.verify import Damage, check_store, describe, repair_hint
 from vlaprobe.configs.collect import InfoConfig
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import JsonObject
 
 
 def _bytes(path: Path) -> int:
     return sum(os.path.getsize(os.path.join(d, f)) for d, _, files in os.walk(path) for f in files)
 
 
-def summarize(path: str | Path) -> dict[str, Any]:
+def summarize(path: str | Path) -> JsonObject:
     """The store's summary (``--json`` output): episodes, layers, hidden size, pooling, model, size..."""
     store = ActivationStore.open(path)
     return {
@@ -38,7 +38,7 @@ def info(cfg: InfoConfig) -> int:
     if cfg.json:
         print(json.dumps(s))
         return _fail(cfg.path, damage)
-    per_task: dict[int, list[dict[str, Any]]] = defaultdict(list)
+    per_task: dict[int, list[JsonObject]] = defaultdict(list)
     for e in s["episodes"]:
         per_task[e["task"]].append(e)
     ok = sum(e["success"] for e in s["episodes"])

@@ -16,7 +16,7 @@ import sys
 import time
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Protocol
 
 import numpy as np
 
@@ -24,13 +24,22 @@ from vlaprobe.collection.store import ActivationStore, EpisodeInfo
 from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.configs.policy import PolicyConfig
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import JsonObject
+from vlaprobe.policies.base import VLAPolicy
+
+
+class Observer(Protocol):
+    """A model that computes hidden states of stored images in batches (``OpenVLAPolicy.observe``)."""
+
+    def observe(self, model_images: np.ndarray, instruction: str) -> np.ndarray: ...
+
 
 SOURCE_ONLY = frozenset({"hidden", "predicted_action", "action_tokens"})
 """Arrays of the source episode that belong to its observer and are not copied."""
 EPISODE_KEYS = frozenset(EpisodeInfo.__dataclass_fields__)
 
 
-def _meta(source: ActivationStore, policy: Any, cfg: PolicyConfig) -> dict[str, Any]:
+def _meta(source: ActivationStore, policy: VLAPolicy, cfg: PolicyConfig) -> JsonObject:
     from vlaprobe.collection.collect import VOLATILE_MODEL_KEYS
 
     kept = {
@@ -49,7 +58,7 @@ def _meta(source: ActivationStore, policy: Any, cfg: PolicyConfig) -> dict[str, 
     }
 
 
-def episode_hidden(policy: Any, images: np.ndarray, instruction: str, batch: int) -> np.ndarray:
+def episode_hidden(policy: Observer, images: np.ndarray, instruction: str, batch: int) -> np.ndarray:
     """(layers, T, hidden) float16 states of ``policy`` for an episode's (T, 224, 224, 3) model images."""
     parts = [policy.observe(images[i : i + batch], instruction) for i in range(0, len(images), batch)]
     return np.ascontiguousarray(np.moveaxis(np.concatenate(parts), 0, 1)).astype(np.float16)
@@ -76,7 +85,7 @@ def reobserve(source: str | Path, out: str | Path, cfg: PolicyConfig, batch: int
             if "image" not in ep:
                 raise VlaprobeError(f"episode {info.key} of {source} has no images; re-collect it")
             arrays = {name: ep[name] for name in ep if name not in SOURCE_ONLY}
-            arrays["hidden"] = episode_hidden(policy, ep["image"], ep.attrs["instruction"], batch)
+            arrays["hidden"] = episode_hidden(policy, ep["image"], ep.attributes.instruction, batch)
             attrs = {k: v for k, v in ep.attrs.items() if k not in EPISODE_KEYS}
             writer.write_episode(info, arrays, attrs)
             added.append(info.key)

@@ -8,6 +8,8 @@ A store is one folder holding a zarr (format 3) hierarchy that any zarr reader o
         hidden                     float16 (layers, T, hidden) or (layers, T, 7, hidden); one chunk per layer
         object_atoms, action_atoms bool (T, atoms), names in the array's attributes and in ``meta``
         image, proprio, action, predicted_action, action_tokens, step, world/* ...
+                                   (the columns of ``collection.episode.EpisodeSteps``; group attributes:
+                                   ``EpisodeInfo`` + ``EpisodeAttrs``)
     <store>/failures/<key>/        attributes only: a tried unit whose failed episode was not kept
 
 This module reads (:class:`ActivationStore`); only :class:`~vlaprobe.collection.writer.StoreWriter` writes,
@@ -21,12 +23,16 @@ import os
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from types import EllipsisType
 
 import numpy as np
 import zarr
+from numpy.typing import DTypeLike
 
+from vlaprobe.collection.episode import EpisodeAttrs, EpisodeSteps, stored_records
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import Json, JsonObject
+from vlaprobe.rollout import StepRecord
 
 FORMAT = "vlaprobe-activations"
 FORMAT_VERSION = 1
@@ -41,7 +47,7 @@ def episode_key(task: int, init: int, attempt: int = 0) -> str:
     return f"t{task:02d}_i{init:02d}_a{attempt:02d}"
 
 
-def _success_step(attrs: Mapping[str, Any]) -> int | None:
+def _success_step(attrs: Mapping[str, Json]) -> int | None:
     if "success_step" in attrs:
         return None if attrs["success_step"] is None else int(attrs["success_step"])
     return int(attrs["length"]) - 1 if attrs["success"] else None  # written before post_success_steps
@@ -72,11 +78,11 @@ class EpisodeInfo:
     recorded with ``post_success_steps``. Stores written before it existed: the last row of a successful
     episode."""
 
-    def attrs(self) -> dict[str, Any]:
+    def attrs(self) -> JsonObject:
         return asdict(self)
 
     @classmethod
-    def from_attrs(cls, attrs: Mapping[str, Any]) -> EpisodeInfo:
+    def from_attrs(cls, attrs: Mapping[str, Json]) -> EpisodeInfo:
         return cls(
             key=str(attrs["key"]),
             task=int(attrs["task"]),
@@ -95,12 +101,12 @@ class EpisodeInfo:
 
 
 # ----- reading --------------------------------------------------------------------------------------------------
-def _read_json(path: Path) -> dict[str, Any]:
+def _read_json(path: Path) -> JsonObject:
     with open(path, "rb") as f:
         return json.load(f)
 
 
-def read_meta(path: Path, hint: str = "pass the --out folder of a `vlaprobe collect` run") -> dict[str, Any]:
+def read_meta(path: Path, hint: str = "pass the --out folder of a `vlaprobe collect` run") -> JsonObject:
     """The root attributes of a store, or a one-line error saying why ``path`` is not a readable store."""
     if not path.exists():
         raise VlaprobeError(f"no activation store at {path}: the folder does not exist; {hint}")
@@ -148,8 +154,9 @@ def list_infos(folder: Path) -> list[EpisodeInfo]:
     return sorted(infos, key=lambda e: e.order)
 
 
-class EpisodeArrays(Mapping[str, np.ndarray]):
-    """All arrays of one episode by name (``"hidden"``, ``"image"``, ``"world/pos"``...), read on first access."""
+class StoredEpisode(Mapping[str, np.ndarray]):
+    """One stored episode: its arrays by name (``"hidden"``, ``"image"``, ``"world/pos"``...), each read on first
+    access, and the typed schema (:attr:`info`, :attr:`attributes`, :meth:`steps`, :meth:`records`)."""
 
     def __init__(self, group: zarr.Group) -> None:
         self._group = group
@@ -178,21 +185,44 @@ class EpisodeArrays(Mapping[str, np.ndarray]):
         return len(self._names)
 
     @property
-    def attrs(self) -> dict[str, Any]:
-        """The episode group's attributes (the :class:`EpisodeInfo` fields, instruction, scene...)."""
+    def attrs(self) -> JsonObject:
+        """The episode group's attributes as stored JSON (the :class:`EpisodeInfo` fields, instruction, scene...)."""
         return dict(self._group.attrs)
+
+    @property
+    def info(self) -> EpisodeInfo:
+        return EpisodeInfo.from_attrs(self._group.attrs)
+
+    @property
+    def attributes(self) -> EpisodeAttrs:
+        """The episode's attributes besides :attr:`info`, typed."""
+        return EpisodeAttrs.from_json(self._group.attrs)
+
+    def steps(self) -> EpisodeSteps:
+        """Every per-step column (reads them all)."""
+        return EpisodeSteps.from_arrays(self)
+
+    def records(self) -> Iterator[StepRecord]:
+        """The rows as the step loop's :class:`~vlaprobe.rollout.StepRecord` (what is not stored is None)."""
+        return stored_records(self, self.info.success_step)
+
+
+EpisodeArrays = StoredEpisode
+"""The name of :class:`StoredEpisode` before the typed schema."""
 
 
 class ActivationStore:
     """Read-only view of a store: the episodes complete when it was opened, read one layer at a time."""
 
-    def __init__(self, path: Path, meta: dict[str, Any]) -> None:
+    def __init__(self, path: Path, meta: JsonObject) -> None:
         self.path = path
         self.meta = meta
         self.num_hidden_states: int = int(meta["num_hidden_states"])
         self.hidden_size: int = int(meta["hidden_size"])
         self.pooling: str = str(meta["pooling"])
         self.model_id: str = str(meta["model_id"])
+        self.created: str = str(meta.get("created", ""))
+        """When the store was created (ISO 8601; "" in stores that do not say)."""
         self.atom_names: dict[str, list[str]] = {h: list(v) for h, v in meta["atom_names"].items()}
         self._infos = list_infos(path / "episodes")
         self._by_key = {e.key: e for e in self._infos}
@@ -227,7 +257,12 @@ class ActivationStore:
         return self._arrays[key, name]
 
     def _concat(
-        self, infos: list[EpisodeInfo], name: str, index: Any, trailing: tuple[int, ...], dtype: Any
+        self,
+        infos: list[EpisodeInfo],
+        name: str,
+        index: int | EllipsisType,
+        trailing: tuple[int, ...],
+        dtype: DTypeLike,
     ) -> np.ndarray:
         """``array[index]`` of every episode, stacked along steps into one preallocated matrix."""
         out = np.empty((sum(e.length for e in infos), *trailing), dtype=dtype)
@@ -276,25 +311,25 @@ class ActivationStore:
         step = np.concatenate([np.arange(n, dtype=np.int32) for n in lengths]) if infos else position.copy()
         return position, step
 
-    def episode(self, key: str) -> EpisodeArrays:
-        """Every array of one episode, each read when first accessed."""
+    def episode(self, key: str) -> StoredEpisode:
+        """One episode: its arrays (each read when first accessed) and its typed schema."""
         self._resolve([key])
-        return EpisodeArrays(self._root[f"episodes/{key}"])
+        return StoredEpisode(self._root[f"episodes/{key}"])
 
     def iter_episodes(
         self, success_only: bool = False, episodes: Sequence[str] | None = None
-    ) -> Iterator[tuple[EpisodeInfo, EpisodeArrays]]:
+    ) -> Iterator[tuple[EpisodeInfo, StoredEpisode]]:
         """One episode at a time (lazily read), never the whole store in memory."""
         infos = self._resolve(episodes) if episodes is not None else self.episodes(success_only)
         for info in infos:
             if info.success or not success_only:
-                yield info, EpisodeArrays(self._root[f"episodes/{info.key}"])
+                yield info, StoredEpisode(self._root[f"episodes/{info.key}"])
 
     def failures(self) -> list[EpisodeInfo]:
         """Tried units whose failed episode was not kept (their markers)."""
         return list_infos(self.path / "failures")
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> JsonObject:
         """What ``vlaprobe info --json`` prints."""
         eps = self.episodes()
         return {

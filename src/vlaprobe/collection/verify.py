@@ -15,12 +15,12 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from itertools import product
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from vlaprobe.collection.store import ATOM_ARRAYS, read_meta
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import JsonObject
 
 REQUIRED = ("hidden", *ATOM_ARRAYS.values())
 """Arrays every episode must have."""
@@ -38,7 +38,7 @@ class Damage:
     """What is wrong, e.g. "hidden: chunk file c.12.0.0 missing"."""
 
 
-def _json(path: Path) -> dict[str, Any]:
+def _json(path: Path) -> JsonObject:
     with open(path, "rb") as f:
         data = json.load(f)
     if not isinstance(data, dict):
@@ -65,7 +65,7 @@ def _arrays(group: Path) -> dict[str, Path]:
     return out
 
 
-def _chunk_names(meta: dict[str, Any]) -> list[str]:
+def _chunk_names(meta: JsonObject) -> list[str]:
     shape = meta["shape"]
     chunks = meta["chunk_grid"]["configuration"]["chunk_shape"]
     encoding = meta.get("chunk_key_encoding", {})
@@ -98,7 +98,7 @@ def _check_array(name: str, folder: Path, all_chunks: bool) -> tuple[tuple[int, 
     return shape, None
 
 
-def _check_episode(group: Path, meta: dict[str, Any]) -> tuple[str | None, set[str]]:
+def _check_episode(group: Path, meta: JsonObject) -> tuple[str | None, set[str]]:
     """The first problem of one episode group (None if none) and its array names."""
     try:
         attrs = _json(group / "zarr.json").get("attributes") or {}

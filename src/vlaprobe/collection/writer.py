@@ -17,7 +17,6 @@ from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import zarr
@@ -31,6 +30,7 @@ from vlaprobe.collection.store import (
     read_meta,
 )
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import Json, JsonObject
 
 STAGING = ".staging"
 CHUNK_BYTES = 8 << 20
@@ -76,12 +76,12 @@ def _fsync_tree(folder: Path) -> None:
         list(pool.map(_fsync, paths))
 
 
-def _short(value: Any) -> str:
+def _short(value: Json) -> str:
     text = json.dumps(value, sort_keys=True, default=str)
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-def _difference(old: Any, new: Any, where: str) -> str | None:
+def _difference(old: Json, new: Json, where: str) -> str | None:
     """The first path at which two JSON-like values differ, with both values; None if equal."""
     if isinstance(old, dict) and isinstance(new, dict):
         for k in sorted(set(old) | set(new), key=str):
@@ -100,12 +100,12 @@ def _difference(old: Any, new: Any, where: str) -> str | None:
     return None
 
 
-def _jsonable(value: Any) -> Any:
+def _jsonable(value: object) -> Json:
     """``value`` as it reads back from JSON (tuples become lists...), so comparisons are like for like."""
     return json.loads(json.dumps(value, default=str))
 
 
-def check_compatible(path: Path, stored: Mapping[str, Any], meta: Mapping[str, Any]) -> None:
+def check_compatible(path: Path, stored: Mapping[str, Json], meta: Mapping[str, Json]) -> None:
     """Refuse (one line) to mix runs whose :data:`COMPATIBLE_KEYS` present in ``meta`` differ from the store's."""
     for key in COMPATIBLE_KEYS:
         if key in meta:
@@ -139,14 +139,14 @@ class StoreWriter:
     Use as a context manager; the store folder stays locked against other writers until :meth:`close`.
     """
 
-    def __init__(self, path: Path, meta: dict[str, Any], lock_fd: int) -> None:
+    def __init__(self, path: Path, meta: JsonObject, lock_fd: int) -> None:
         self.path = path
         self.meta = meta
         self._lock_fd = lock_fd
         self._staging = path / STAGING
 
     @classmethod
-    def open(cls, path: str | Path, meta: Mapping[str, Any]) -> StoreWriter:
+    def open(cls, path: str | Path, meta: Mapping[str, Json]) -> StoreWriter:
         """Create the store with ``meta`` as its metadata, or open an existing compatible one.
 
         ``meta`` must hold every :data:`COMPATIBLE_KEYS` entry plus whatever else the store should record.
@@ -178,7 +178,7 @@ class StoreWriter:
         return cls(path, stored, fd)
 
     @staticmethod
-    def _create(path: Path, meta: dict[str, Any]) -> None:
+    def _create(path: Path, meta: JsonObject) -> None:
         """Build the empty hierarchy beside ``path`` and rename it into place (a kill leaves no half store)."""
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.parent / f".{path.name}.{uuid.uuid4().hex[:8]}.partial"
@@ -201,7 +201,7 @@ class StoreWriter:
         infos = list_infos(self.path / "failures") + list_infos(self.path / "episodes")
         return {e.key: e for e in infos}
 
-    def update_meta(self, **fields: Any) -> None:
+    def update_meta(self, **fields: Json) -> None:
         """Set metadata fields (e.g. the list of runs); the root metadata file is replaced atomically."""
         self.meta = {**self.meta, **_jsonable(fields)}
         root = zarr.open_group(zarr.storage.LocalStore(self.path), mode="r+")
@@ -230,7 +230,7 @@ class StoreWriter:
                 )
 
     def stage(
-        self, info: EpisodeInfo, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any] | None = None
+        self, info: EpisodeInfo, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Json] | None = None
     ) -> StagedEpisode:
         """Write an episode under ``.staging/`` and flush it to disk; nothing is visible yet.
 
@@ -280,12 +280,12 @@ class StoreWriter:
         shutil.rmtree(staged.path, ignore_errors=True)
 
     def write_episode(
-        self, info: EpisodeInfo, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Any] | None = None
+        self, info: EpisodeInfo, arrays: Mapping[str, np.ndarray], attrs: Mapping[str, Json] | None = None
     ) -> None:
         """Stage and publish in one go."""
         self.publish(self.stage(info, arrays, attrs))
 
-    def mark_failed(self, info: EpisodeInfo, attrs: Mapping[str, Any] | None = None) -> None:
+    def mark_failed(self, info: EpisodeInfo, attrs: Mapping[str, Json] | None = None) -> None:
         """Record that a unit was tried and failed, without its data (so a resume does not try it again)."""
         self._staging.mkdir(exist_ok=True)
         tmp = self._staging / f"{info.key}-{os.getpid()}-{uuid.uuid4().hex[:8]}"

@@ -10,16 +10,19 @@ from __future__ import annotations
 import dataclasses
 import typing
 from pathlib import Path
-from typing import Any
+from typing import TypeVar
 
 import dacite
 
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import Json, JsonObject
+
+C = TypeVar("C")
 
 
-def config_to_dict(cfg: Any) -> dict[str, Any]:
+def config_to_dict(cfg: object) -> JsonObject:
     """A JSON-ready dict of a config dataclass (nested dataclasses, paths as strings, tuples as lists)."""
-    out: dict[str, Any] = {}
+    out: JsonObject = {}
     for f in dataclasses.fields(cfg):
         v = getattr(cfg, f.name)
         if dataclasses.is_dataclass(v) and not isinstance(v, type):
@@ -32,11 +35,11 @@ def config_to_dict(cfg: Any) -> dict[str, Any]:
     return out
 
 
-def _int_as_float(value: Any) -> Any:
+def _int_as_float(value: Json) -> Json:
     return float(value) if isinstance(value, int) and not isinstance(value, bool) else value
 
 
-def _str_as_path(value: Any) -> Any:
+def _str_as_path(value: Json) -> Json:
     return Path(value) if isinstance(value, str) else value
 
 
@@ -47,7 +50,7 @@ _DACITE = dacite.Config(
 )
 
 
-def config_from_dict(cls: type, data: dict[str, Any], source: str = "config") -> Any:
+def config_from_dict(cls: type[C], data: JsonObject, source: str = "config") -> C:
     """Build a config dataclass from a dict (as written by :func:`config_to_dict`); unknown keys are refused."""
     try:
         return dacite.from_dict(cls, data, config=_DACITE)
@@ -65,7 +68,7 @@ def config_from_dict(cls: type, data: dict[str, Any], source: str = "config") ->
         raise VlaprobeError(f"{source}: {exc}; fix the file") from None
 
 
-def _type_name(tp: Any) -> str:
+def _type_name(tp: object) -> str:
     if typing.get_origin(tp) is typing.Literal:
         return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
     return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import re
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -23,7 +22,6 @@ if TYPE_CHECKING:
     from vlaprobe.configs.report import ReportConfig
     from vlaprobe.configs.run import RunConfig
     from vlaprobe.configs.serve import ServeConfig
-    from vlaprobe.configs.suite import AtomsConfig
     from vlaprobe.configs.train import TrainConfig
 
 MAX_SEED = 2**32 - 8
@@ -77,7 +75,7 @@ MAX_COUNT = 2**31 - 1
 """Largest count any flag takes (steps, epochs, workers...): beyond it a value is a typo, not a plan."""
 
 
-def _at_least(value: int | None, low: int, flag: str, fix: str = "") -> None:
+def at_least(value: int | None, low: int, flag: str, fix: str = "") -> None:
     if value is not None and value < low:
         raise VlaprobeError(f"{flag} must be at least {low}, got {value}{fix}")
     if value is not None and value > MAX_COUNT:
@@ -123,38 +121,36 @@ def check_train(cfg: TrainConfig, prefix: str = "") -> None:
             f"{f('min_frequency')} {cfg.min_frequency:g} must be below {f('max_frequency')} "
             f"{cfg.max_frequency:g} (atoms outside that range are dropped: none would be left)"
         )
-    _at_least(cfg.split.folds, 1, f("split.folds"))
+    at_least(cfg.split.folds, 1, f("split.folds"))
     if cfg.split.folds == 1:
         _between(cfg.split.test_fraction, 0, 1, f("split.test_fraction"))
     p = cfg.probe
     if not p.c_grid or not all(math.isfinite(c) and c > 0 for c in p.c_grid):
         raise VlaprobeError(f"{f('probe.c_grid')} needs positive finite values, got {list(p.c_grid)}")
     if len(p.c_grid) > 1:
-        _at_least(p.cv_folds, 2, f("probe.cv_folds"), " (or give one value to --probe.c-grid)")
+        at_least(p.cv_folds, 2, f("probe.cv_folds"), " (or give one value to --probe.c-grid)")
     if not (math.isfinite(p.tol) and p.tol > 0):
         raise VlaprobeError(f"{f('probe.tol')} must be a positive finite number, got {p.tol}")
-    _at_least(p.max_iter, 1, f("probe.max_iter"))
-    _at_least(p.history, 1, f("probe.history"))
+    at_least(p.max_iter, 1, f("probe.max_iter"))
+    at_least(p.history, 1, f("probe.history"))
     _between(p.threshold, 0, 1, f("probe.threshold"))
     check_device(p.device, f("probe.device"))
-    _at_least(cfg.bootstrap, 0, f("bootstrap"))
-    _at_least(cfg.auprc_bootstrap, 0, f("auprc_bootstrap"))
+    at_least(cfg.bootstrap, 0, f("bootstrap"))
+    at_least(cfg.auprc_bootstrap, 0, f("auprc_bootstrap"))
     if cfg.shuffled_control:
-        _at_least(
-            cfg.shuffled_permutations, 1, f("shuffled_permutations"), " (or pass --no-shuffled-control)"
-        )
+        at_least(cfg.shuffled_permutations, 1, f("shuffled_permutations"), " (or pass --no-shuffled-control)")
     check_seed(cfg.seed, f("seed"))
 
 
 def check_env(env: EnvConfig, prefix: str = "env.") -> None:
     """Simulator settings."""
-    _at_least(env.max_steps, 1, _flag(prefix, "max_steps"))
-    _at_least(env.image_size, 16, _flag(prefix, "image_size"))
+    at_least(env.max_steps, 1, _flag(prefix, "max_steps"))
+    at_least(env.image_size, 16, _flag(prefix, "image_size"))
     if env.image_size > MAX_IMAGE_SIZE:
         raise VlaprobeError(
             f"{_flag(prefix, 'image_size')} must be at most {MAX_IMAGE_SIZE}, got {env.image_size}"
         )
-    _at_least(env.settle_steps, 0, _flag(prefix, "settle_steps"))
+    at_least(env.settle_steps, 0, _flag(prefix, "settle_steps"))
     check_step_budget(
         env.max_steps, env.settle_steps, _flag(prefix, "max_steps"), _flag(prefix, "settle_steps")
     )
@@ -181,85 +177,39 @@ def check_policy(policy: PolicyConfig, prefix: str = "") -> None:
     check_seed(policy.seed, _flag(prefix, "seed"))
 
 
-def check_tasks(tasks: tuple[int, ...], suite: str, flag: str) -> list[int]:
-    """Every selected task exists in ``suite`` (read from LIBERO's task list: no assets, no model); the suite's
-    task indices."""
-    from vlaprobe.envs.libero import suite_tasks
-
-    known = [i for i, _ in suite_tasks(suite)]
-    unknown = [t for t in tasks if t not in known]
-    if unknown:
-        raise VlaprobeError(
-            f"{flag} {unknown} do not exist; {suite} has tasks 0-{max(known)} (see `vlaprobe tasks`)"
-        )
-    return known
-
-
-def check_inits(env: EnvConfig, tasks: tuple[int, ...]) -> None:
-    """With ``--inits sampled`` (or ``sampled-swap``), every selected task's BDDL lets LIBERO's placement sampler
-    place its objects, and with ``sampled-swap`` its instruction has a form whose referent can be checked after a
-    swap (read from the BDDL files: no simulator)."""
-    if env.inits == "fixed":
-        return
-    from vlaprobe.envs.libero import suite_tasks, task_problem
-    from vlaprobe.envs.placements import sampling_problems
-    from vlaprobe.envs.referents import instruction_form
-
-    instructions = dict(suite_tasks(env.suite))
-    for task in tasks or tuple(instructions):
-        problem = task_problem(task, env.suite)
-        problems = sampling_problems(problem)
-        if problems:
-            raise VlaprobeError(
-                f"--inits {env.inits}: task {task}'s regions cannot be sampled ({'; '.join(problems)}); "
-                "use --inits fixed or leave the task out (--tasks)"
-            )
-        goal = problem.get("goal_state", [])
-        pick = goal[0][1] if len(goal) == 1 and len(goal[0]) == 3 else ""
-        if env.inits == "sampled-swap" and instruction_form(instructions[task], pick) is None:
-            raise VlaprobeError(
-                f"--inits sampled-swap: task {task}'s instruction {instructions[task]!r} does not describe the "
-                "object to pick in a form that can be checked after a swap; use --inits sampled or leave it out"
-            )
-
-
 def check_collect(cfg: CollectConfig, prefix: str = "") -> None:
-    """The options of ``vlaprobe collect`` that need no model or store to check."""
+    """The options of ``vlaprobe collect`` that need no model, store or suite to check (the suite's:
+    ``vlaprobe.collection.collect.check_collect_suite``)."""
     f = lambda name: _flag(prefix, name)  # noqa: E731
-    _at_least(cfg.episodes_per_task, 1, f("episodes_per_task"))
-    _at_least(cfg.workers, 1, f("workers"))
-    _at_least(cfg.max_tries_per_task, 1, f("max_tries_per_task"))
-    _at_least(cfg.first_init, 0, f("first_init"))
-    _at_least(cfg.post_success_steps, 0, f("post_success_steps"))
-    _at_least(cfg.threads, 1, f("threads"), " (or leave it out for the default)")
-    check_tasks(cfg.tasks, cfg.env.suite, f("tasks"))
+    at_least(cfg.episodes_per_task, 1, f("episodes_per_task"))
+    at_least(cfg.workers, 1, f("workers"))
+    at_least(cfg.max_tries_per_task, 1, f("max_tries_per_task"))
+    at_least(cfg.first_init, 0, f("first_init"))
+    at_least(cfg.post_success_steps, 0, f("post_success_steps"))
+    at_least(cfg.threads, 1, f("threads"), " (or leave it out for the default)")
     if not (math.isfinite(cfg.ray_gpus_per_worker) and cfg.ray_gpus_per_worker >= 0):
         raise VlaprobeError(f"{f('ray_gpus_per_worker')} must be 0 or more, got {cfg.ray_gpus_per_worker}")
     check_env(cfg.env, prefix + "env.")
-    check_inits(cfg.env, cfg.tasks)
-    from vlaprobe.rollout.perturb import PerturbSpec
-
-    PerturbSpec.parse(cfg.perturb, f("perturb"))
     check_policy(cfg.policy)
 
 
 def check_serve(cfg: ServeConfig) -> None:
-    """The options of ``vlaprobe serve`` checked before the model loads (the server checks its own limits)."""
+    """The options of ``vlaprobe serve`` checked before the model loads (the server checks its own limits and
+    the suite's)."""
     from vlaprobe.files import check_output_folder
 
     check_seed(cfg.seed, "--seed")
     if not 0 <= cfg.port <= 65535:
         raise VlaprobeError(f"--port must be between 0 and 65535 (0: any free port), got {cfg.port}")
-    _at_least(cfg.post_success_steps, 0, "--post-success-steps")
-    _at_least(
+    at_least(cfg.post_success_steps, 0, "--post-success-steps")
+    at_least(
         cfg.max_message_bytes, MIN_MESSAGE_BYTES, "--max-message-bytes", " (a start command is ~100 bytes)"
     )
-    _at_least(cfg.threads, 0, "--threads", " (0: the default)")
+    at_least(cfg.threads, 0, "--threads", " (0: the default)")
     if not (math.isfinite(cfg.image_hz) and cfg.image_hz > 0):
         raise VlaprobeError(f"--image-hz must be a positive number, got {cfg.image_hz}")
     _between(cfg.replay_hz, REPLAY_HZ[0], REPLAY_HZ[1], "--replay-hz", closed=True)
     check_env(cfg.env)
-    check_inits(cfg.env, ())
     if cfg.recordings is not None:  # a folder the user named (the default sits beside the probes)
         check_output_folder(cfg.recordings, "--recordings")
     if cfg.token is not None and cfg.token_file is not None:
@@ -276,30 +226,6 @@ REPLAY_HZ = (0.5, 60.0)
 """Replay pacing bounds, steps per second (``--replay-hz`` and a replay command's ``hz``)."""
 
 
-def check_atoms(cfg: AtomsConfig) -> None:
-    """The options of ``vlaprobe atoms``, before the simulator is built (a task is an index in plain digits or
-    an exact instruction: other digit characters such as "²" are neither)."""
-    from vlaprobe.envs.libero import suite_tasks
-
-    tasks = suite_tasks(cfg.env.suite)
-    task = cfg.task.strip() if isinstance(cfg.task, str) else cfg.task
-    if isinstance(task, str) and re.fullmatch(r"-?[0-9]{1,6}", task):
-        task = int(task)
-    if isinstance(task, int) and not 0 <= task < len(tasks):
-        raise VlaprobeError(f"--task {task} out of range; {cfg.env.suite} has tasks 0-{len(tasks) - 1}")
-    if isinstance(task, str) and task.lower() not in {text.lower() for _, text in tasks}:
-        raise VlaprobeError(
-            f"--task {task[:80]!r} is neither a task index nor an instruction of {cfg.env.suite}; see `vlaprobe tasks`"
-        )
-    _at_least(cfg.init, 0, "--init")
-    check_env(cfg.env)
-    from vlaprobe.envs.libero import _benchmark  # the init states are a file: no simulator needed
-
-    inits = len(_benchmark(cfg.env.suite).get_task_init_states(task if isinstance(task, int) else 0))
-    if cfg.init >= inits:
-        raise VlaprobeError(f"--init {cfg.init} does not exist; the task has init states 0-{inits - 1}")
-
-
 def check_report(cfg: ReportConfig, prefix: str = "") -> None:
     """The options of ``vlaprobe report``."""
     if not 10 <= cfg.dpi <= 1200:
@@ -307,7 +233,8 @@ def check_report(cfg: ReportConfig, prefix: str = "") -> None:
 
 
 def check_run(cfg: RunConfig) -> None:
-    """Every stage of ``vlaprobe run``, and what the stages need of each other, before collecting."""
+    """Every stage of ``vlaprobe run``, and what the stages need of each other, before collecting (what needs
+    the suite: ``vlaprobe.pipeline.check_run_suite``)."""
     check_collect(cfg.collect, "collect.")
     check_train(cfg.train, "train.")
     check_report(cfg.report, "report.")
@@ -323,19 +250,3 @@ def check_run(cfg: RunConfig) -> None:
             f"--collect.episodes-per-task {c.episodes_per_task} leaves no task with 2 episodes, so nothing can be "
             "held out to test the probes; use --collect.episodes-per-task 2 or more"
         )
-    from vlaprobe.envs.libero import suite_tasks  # check_collect has checked the selected tasks
-
-    episodes = len(c.tasks or suite_tasks(c.env.suite)) * c.episodes_per_task
-    if cfg.train.split.folds > episodes and not c.keep_failed:
-        raise VlaprobeError(
-            f"--train.split.folds {cfg.train.split.folds} needs at least that many episodes; this run keeps "
-            f"{episodes}: lower --train.split.folds or collect more"
-        )
-
-
-def precheck(cfg: object) -> None:
-    """Checks the CLI runs before a command whose own function has none up front (``atoms``, ``tasks``)."""
-    if type(cfg).__name__ == "AtomsConfig":
-        check_atoms(cfg)  # type: ignore[arg-type]
-    elif type(cfg).__name__ == "TasksConfig":
-        check_env(cfg.env)  # type: ignore[attr-defined]

@@ -24,7 +24,7 @@ class ServeConfig:
     store: Path | None = None
     """An activation store (``vlaprobe collect``) whose episodes are listed and replayed without the simulator."""
     host: str = "127.0.0.1"
-    """Address to bind. Any address other than loopback requires a token."""
+    """Address to bind. An address other than loopback requires a token."""
     port: int = 6006
     """TCP port (the paper's UI connects to 6006)."""
     token: str | None = None

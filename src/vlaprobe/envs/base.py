@@ -1,15 +1,30 @@
-"""The environment interface the step loop sees (:class:`TaskEnv`), implemented by ``LiberoTaskEnv``."""
+"""The environment interface the step loop sees (:class:`TaskEnv`, :class:`Observation`), implemented by
+``LiberoTaskEnv``."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
-from vlaprobe.envs.libero import Observation
 from vlaprobe.symbols import Goal, Labeler, Scene, WorldState
 
 __all__ = ["Observation", "TaskEnv"]
+
+
+@dataclass
+class Observation:
+    """What a policy sees after a reset or a step."""
+
+    image: np.ndarray | None
+    """Raw agentview render (H, W, 3) uint8 as robosuite returns it (upside down); None when not rendering."""
+    proprio: np.ndarray
+    """float32 (9,): end-effector position (3), quaternion xyzw (4), finger joint positions (2)."""
+    step: int
+    """Steps since the settled reset (0 at the first observation)."""
+    success: bool
+    """LIBERO's own goal check."""
 
 
 class TaskEnv(Protocol):

@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
 
 import numpy as np
 
 from vlaprobe.configs.env import EnvConfig
+from vlaprobe.envs.base import Observation
 from vlaprobe.envs.libero_world import CAMERA, SceneIndex, read_goal, read_scene
 from vlaprobe.envs.placements import (
     MAX_DRAWS,
@@ -38,20 +38,6 @@ from vlaprobe.symbols import Labeler, WorldState
 NOOP_ACTION = np.array([0, 0, 0, 0, 0, 0, -1], dtype=np.float64)  # gripper open
 
 
-@dataclass
-class Observation:
-    """What a policy sees after a reset or a step."""
-
-    image: np.ndarray | None
-    """Raw agentview render (H, W, 3) uint8 as robosuite returns it (upside down); None when not rendering."""
-    proprio: np.ndarray
-    """float32 (9,): end-effector position (3), quaternion xyzw (4), finger joint positions (2)."""
-    step: int
-    """Steps since the settled reset (0 at the first observation)."""
-    success: bool
-    """LIBERO's own goal check."""
-
-
 @lru_cache(maxsize=4)
 def _benchmark(suite: str) -> Any:
     prepare_libero(need_assets=False)  # task lists come from LIBERO's own files, not from the assets
@@ -71,6 +57,11 @@ def suite_tasks(suite: str = "libero_spatial") -> list[tuple[int, str]]:
     """(index, instruction) of every task of a suite; no simulator is built."""
     bench = _benchmark(suite)
     return [(i, bench.get_task(i).language) for i in range(bench.get_num_tasks())]
+
+
+def num_init_states(suite: str, task: int) -> int:
+    """How many fixed init states a task has (read from LIBERO's init-state file: no simulator)."""
+    return len(_benchmark(suite).get_task_init_states(task))
 
 
 def resolve_task(task: int | str, suite: str = "libero_spatial") -> int:

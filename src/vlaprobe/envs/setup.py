@@ -18,7 +18,7 @@ from __future__ import annotations
 import ctypes.util
 import os
 from pathlib import Path
-from typing import Any
+from types import ModuleType
 
 from vlaprobe.envs.assets import ASSETS_ENV, check_assets
 from vlaprobe.errors import VlaprobeError
@@ -126,7 +126,7 @@ def resolve_assets(assets: str | Path | None) -> Path | None:
     return _checked(folder)
 
 
-def _libero_own_assets(libero_root: Any) -> Path:
+def _libero_own_assets(libero_root: ModuleType) -> Path:
     """LIBERO's own assets: inside the libero package, else downloaded from the Hugging Face Hub (its chatter,
     on stdout and stderr, is kept out of the terminal: stdout must stay clean for --json output)."""
     import contextlib

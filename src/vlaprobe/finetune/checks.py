@@ -5,12 +5,12 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any
 
 from vlaprobe.configs import config_to_dict
 from vlaprobe.configs.checks import check_seed
 from vlaprobe.configs.finetune import FinetuneConfig
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import Json, JsonObject
 from vlaprobe.finetune.state import CHECKPOINT, RUN_FILES, recover
 from vlaprobe.policies.openvla.config import OpenVLAConfig
 
@@ -73,7 +73,7 @@ def check_finetune(cfg: FinetuneConfig) -> None:
         raise VlaprobeError("--lora already freezes every base weight; drop --freeze-vision")
 
 
-def _first_difference(a: Any, b: Any, path: str = "") -> str | None:
+def _first_difference(a: Json, b: Json, path: str = "") -> str | None:
     if isinstance(a, dict) and isinstance(b, dict):
         for key in sorted(set(a) | set(b)):
             found = _first_difference(a.get(key), b.get(key), f"{path}.{key}" if path else str(key))
@@ -118,7 +118,7 @@ def check_run_folder(cfg: FinetuneConfig, arch: OpenVLAConfig) -> bool:
     return True
 
 
-def _read_settings(path: Path) -> dict[str, Any]:
+def _read_settings(path: Path) -> JsonObject:
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError):

@@ -6,7 +6,6 @@ import dataclasses
 import json
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -14,7 +13,7 @@ import torch
 from vlaprobe.configs import config_to_dict
 from vlaprobe.configs.finetune import FinetuneConfig
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import write_atomic
+from vlaprobe.files import JsonObject, write_atomic
 from vlaprobe.finetune import lora as lora_mod
 from vlaprobe.finetune import model_io
 from vlaprobe.finetune.checks import check_finetune, check_run_folder
@@ -37,12 +36,12 @@ from vlaprobe.finetune.state import (
 )
 
 
-def _stats_of(norm_stats: dict[str, Any], name: str) -> ActionStats:
+def _stats_of(norm_stats: JsonObject, name: str) -> ActionStats:
     a = norm_stats[name]["action"]
     return ActionStats(np.asarray(a["q01"]), np.asarray(a["q99"]), np.asarray(a["mask"], dtype=bool))
 
 
-def _check_same_data(cfg: FinetuneConfig, norm_stats: dict[str, Any]) -> None:
+def _check_same_data(cfg: FinetuneConfig, norm_stats: JsonObject) -> None:
     saved = json.loads((cfg.out / CHECKPOINT / "dataset_statistics.json").read_text())
     if saved.get(cfg.dataset_name) != json.loads(json.dumps(norm_stats[cfg.dataset_name])):
         raise VlaprobeError(
@@ -51,7 +50,7 @@ def _check_same_data(cfg: FinetuneConfig, norm_stats: dict[str, Any]) -> None:
         )
 
 
-def _data(cfg: FinetuneConfig, image_size: int) -> tuple[Demonstrations, Split, dict[str, Any]]:
+def _data(cfg: FinetuneConfig, image_size: int) -> tuple[Demonstrations, Split, JsonObject]:
     """The demonstrations, their split and the training split's statistics (``norm_stats``)."""
     demos = load_demonstrations(
         cfg.stores, image_size, cfg.success_only, cfg.skip_post_success, cfg.drop_noops
@@ -71,7 +70,7 @@ def _restore(
     optimizer: torch.optim.Optimizer,
     lora: bool,
     device: torch.device,
-) -> tuple[TrainState, list[dict[str, Any]]]:
+) -> tuple[TrainState, list[JsonObject]]:
     """Weights (or the adapter), optimizer, state and metric records of the checkpoint in ``--out``."""
     state = read_train_state(cfg.out) or TrainState()
     if lora:
@@ -82,7 +81,7 @@ def _restore(
     return state, read_metrics(cfg.out, state.step)
 
 
-def build_trainer(cfg: FinetuneConfig) -> tuple[Trainer, dict[str, Any]]:
+def build_trainer(cfg: FinetuneConfig) -> tuple[Trainer, JsonObject]:
     """Everything up to the first step; every input problem is a one-line error before any training."""
     from vlaprobe import devices
     from vlaprobe.collection.store import read_meta

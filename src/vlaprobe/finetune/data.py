@@ -10,12 +10,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from vlaprobe.collection.store import ActivationStore, EpisodeArrays, EpisodeInfo
+from vlaprobe.collection.store import ActivationStore, EpisodeInfo, StoredEpisode
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import JsonObject
 from vlaprobe.policies.openvla.actions import training_gripper
 
 NOOP_THRESHOLD = 1e-4
@@ -70,8 +70,8 @@ class Split:
     """Episode indices held out."""
 
 
-def _instruction(store: ActivationStore, info: EpisodeInfo, arrays: EpisodeArrays) -> str:
-    text = arrays.attrs.get("instruction") or (store.meta.get("instructions") or {}).get(str(info.task))
+def _instruction(store: ActivationStore, info: EpisodeInfo, arrays: StoredEpisode) -> str:
+    text = arrays.attributes.instruction or (store.meta.get("instructions") or {}).get(str(info.task))
     if not text:
         raise VlaprobeError(
             f"store {store.path}: episode {info.key} has no instruction; collect it again with this vlaprobe"
@@ -184,9 +184,9 @@ def _summary(x: np.ndarray) -> dict[str, list[float]]:
     }
 
 
-def dataset_statistics(demos: Demonstrations, rows: np.ndarray, n_episodes: int) -> dict[str, Any]:
+def dataset_statistics(demos: Demonstrations, rows: np.ndarray, n_episodes: int) -> JsonObject:
     """OpenVLA's per-dataset statistics of ``rows`` (its ``dataset_statistics.json`` entry)."""
-    stats: dict[str, Any] = {"action": {**_summary(demos.actions[rows]), "mask": list(ACTION_MASK)}}
+    stats: JsonObject = {"action": {**_summary(demos.actions[rows]), "mask": list(ACTION_MASK)}}
     if demos.proprio is not None:
         stats["proprio"] = _summary(demos.proprio[rows].astype(np.float64))
     stats["num_transitions"] = len(rows)

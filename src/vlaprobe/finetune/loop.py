@@ -11,12 +11,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
 
 from vlaprobe.configs.finetune import FinetuneConfig
+from vlaprobe.files import JsonObject
 from vlaprobe.finetune.data import Split
 from vlaprobe.finetune.evaluate import autocast, validate
 from vlaprobe.finetune.examples import ActionStats, Examples, make_batch
@@ -68,8 +68,8 @@ class Trainer:
     schedule: Schedule
     optimizer: torch.optim.Optimizer
     write_model: Callable[[Path], None]
-    adapter: Callable[[], tuple[dict[str, torch.Tensor], dict[str, Any]]] | None
-    records: list[dict[str, Any]]
+    adapter: Callable[[], tuple[dict[str, torch.Tensor], JsonObject]] | None
+    records: list[JsonObject]
     """Metric records so far (those of a resumed checkpoint first)."""
     state: TrainState
     _epoch: int = field(default=-1, init=False)
@@ -104,7 +104,7 @@ class Trainer:
         self.state.step += 1
         return float(loss.detach())
 
-    def evaluate(self, scheduled: bool, rate: float) -> dict[str, Any]:
+    def evaluate(self, scheduled: bool, rate: float) -> JsonObject:
         """Validate, append the record to ``metrics.jsonl`` and write a checkpoint (in that order)."""
         s = self.state
         v = validate(
@@ -174,7 +174,7 @@ class Trainer:
         return True
 
 
-def _line(record: dict[str, Any]) -> str:
+def _line(record: JsonObject) -> str:
     return (
         f"step {record['step']}: train loss {record['train_loss']:.4f}, val loss {record['val_loss']:.4f}, "
         f"val token accuracy {record['val_accuracy']:.4f}, val L1 {record['val_l1']:.4f}"

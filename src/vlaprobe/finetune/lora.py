@@ -8,12 +8,16 @@ which is what "all-linear" selects on OpenVLA's own model.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 import torch
 from torch import nn
 
+from vlaprobe.files import JsonObject
 from vlaprobe.policies.openvla.model import OpenVLA
+
+if TYPE_CHECKING:
+    from peft import LoraConfig
 
 ADAPTER = "default"
 """peft's adapter name."""
@@ -30,7 +34,7 @@ def lora_targets(model: nn.Module) -> list[str]:
     )
 
 
-def lora_config(model: nn.Module, rank: int, dropout: float) -> Any:
+def lora_config(model: nn.Module, rank: int, dropout: float) -> LoraConfig:
     """peft's ``LoraConfig`` for OpenVLA's fine-tuning recipe."""
     from peft import LoraConfig
 
@@ -43,7 +47,7 @@ def lora_config(model: nn.Module, rank: int, dropout: float) -> Any:
     )
 
 
-def add_lora(model: OpenVLA, rank: int, dropout: float, seed: int) -> Any:
+def add_lora(model: OpenVLA, rank: int, dropout: float, seed: int) -> LoraConfig:
     """Inject the adapters in place (A drawn from ``seed``, B = 0) and leave only them trainable."""
     from peft import inject_adapter_in_model
 
@@ -56,7 +60,7 @@ def add_lora(model: OpenVLA, rank: int, dropout: float, seed: int) -> Any:
     return config
 
 
-def _lora_layers(model: nn.Module) -> dict[str, Any]:
+def _lora_layers(model: nn.Module) -> JsonObject:
     from peft.tuners.lora import LoraLayer
 
     return {name: m for name, m in model.named_modules() if isinstance(m, LoraLayer)}
@@ -103,7 +107,7 @@ def load_adapter(model: nn.Module, tensors: dict[str, torch.Tensor]) -> None:
         own[key].copy_(value)
 
 
-def adapter_config_json(config: Any) -> dict[str, Any]:
+def adapter_config_json(config: LoraConfig) -> JsonObject:
     """peft's ``adapter_config.json`` content (sets as sorted lists)."""
     out = {}
     for key, value in config.to_dict().items():

@@ -8,11 +8,10 @@ import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import torch
 
-from vlaprobe.files import write_atomic
+from vlaprobe.files import JsonObject, write_atomic
 from vlaprobe.policies.openvla import checkpoint
 from vlaprobe.policies.openvla.config import OpenVLAConfig
 from vlaprobe.policies.openvla.model import OpenVLA
@@ -73,7 +72,7 @@ DTYPES = {"bfloat16": torch.bfloat16, "float16": torch.float16, "float32": torch
 
 
 def _write_official(
-    folder: Path, source: Path, state: dict[str, torch.Tensor], norm_stats: dict[str, Any], merged: bool
+    folder: Path, source: Path, state: dict[str, torch.Tensor], norm_stats: JsonObject, merged: bool
 ) -> None:
     from safetensors.torch import save_file
 
@@ -99,9 +98,9 @@ def _write_official(
 def model_writer(
     init: Initial,
     state: Callable[[], dict[str, torch.Tensor]],
-    norm_stats: dict[str, Any],
+    norm_stats: JsonObject,
     model_id: str,
-    info: Callable[[], dict[str, Any]],
+    info: Callable[[], JsonObject],
     merged: bool = False,
 ) -> Callable[[Path], None]:
     """A function that writes the current weights (``state()``) as a model folder into a given folder;

@@ -21,11 +21,10 @@ import shutil
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
 
 import torch
 
-from vlaprobe.files import write_atomic
+from vlaprobe.files import JsonObject, write_atomic
 
 CHECKPOINT = "checkpoint"
 TRAINING = "training"
@@ -59,7 +58,7 @@ def recover(out: Path) -> None:
     shutil.rmtree(out / PARTIAL, ignore_errors=True)
 
 
-def _optimizer_files(optimizer: torch.optim.Optimizer) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+def _optimizer_files(optimizer: torch.optim.Optimizer) -> tuple[dict[str, torch.Tensor], JsonObject]:
     sd = optimizer.state_dict()
     tensors, keys = {}, {}
     for index, state in sd["state"].items():
@@ -74,7 +73,7 @@ def write_checkpoint(
     write_model: Callable[[Path], None],
     state: TrainState,
     optimizer: torch.optim.Optimizer,
-    adapter: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None,
+    adapter: tuple[dict[str, torch.Tensor], JsonObject] | None = None,
 ) -> None:
     """Write the model (``write_model`` fills a folder), the optimizer and ``state``; swap it in by rename."""
     from safetensors.torch import save_file
@@ -127,7 +126,7 @@ def read_adapter(out: Path) -> dict[str, torch.Tensor]:
     return load_file(str(out / CHECKPOINT / TRAINING / "adapter_model.safetensors"))
 
 
-def read_metrics(out: Path, up_to_step: int) -> list[dict[str, Any]]:
+def read_metrics(out: Path, up_to_step: int) -> list[JsonObject]:
     """The metric records of ``out`` at or before ``up_to_step`` (later ones belong to a lost part)."""
     path = out / "metrics.jsonl"
     if not path.is_file():
@@ -136,5 +135,5 @@ def read_metrics(out: Path, up_to_step: int) -> list[dict[str, Any]]:
     return [r for r in records if r["step"] <= up_to_step]
 
 
-def write_metrics(out: Path, records: list[dict[str, Any]]) -> None:
+def write_metrics(out: Path, records: list[JsonObject]) -> None:
     write_atomic(out / "metrics.jsonl", "".join(json.dumps(r) + "\n" for r in records))

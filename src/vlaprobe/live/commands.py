@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import random
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from pydantic import ValidationError
 
@@ -94,7 +94,7 @@ class Commands:
             on_error=self._tell(client),
         )
 
-    def control(self, cmd: Any) -> None:
+    def control(self, cmd: P.StopCommand | P.PauseCommand | P.ResumeCommand | P.DropCommand) -> None:
         """stop, pause, resume or drop: act on the running episode."""
         run = self.session.running
         if run is None:

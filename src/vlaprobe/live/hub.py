@@ -20,7 +20,11 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Protocol
+
+from typing_extensions import TypeVarTuple, Unpack
+
+Ts = TypeVarTuple("Ts")
 
 PRIVATE_LIMIT = 64
 """Control messages (errors, hello) kept per client; the oldest are dropped beyond this."""
@@ -101,7 +105,7 @@ class Hub:
         self.clients: set[Client] = set()
         self.current: EpisodeLog | None = None
 
-    def threadsafe(self, fn: Callable[..., Any], *args: Any) -> None:
+    def threadsafe(self, fn: Callable[[Unpack[Ts]], object], *args: Unpack[Ts]) -> None:
         """Run ``fn(*args)`` on the event loop's thread (from the episode thread)."""
         if self.loop is None or self.loop.is_closed():
             return  # the server has shut down; nobody is left to tell

@@ -10,11 +10,15 @@ import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
+from vlaprobe.cognition.core import CognitionStep, Violation
+from vlaprobe.cognition.subgoals import Event, SubgoalState
 from vlaprobe.live import protocol as P
+from vlaprobe.rollout import StepRecord, StepTimings
+from vlaprobe.symbols import Goal
 
 HEADS = ("object", "action")
 STORE_PREFIX = "store-"
@@ -44,34 +48,15 @@ class Readout(Protocol):
     def read(self, hidden: np.ndarray) -> dict[str, Reading]: ...
 
 
-class CognitionStepLike(Protocol):
-    asserted: Sequence[str]
-    retracted: Sequence[str]
-    violations: Sequence[Any]
-    subgoals: Sequence[Any]
-    progress: float
-    events: Sequence[Any]
-    goal_reached: bool
+class EpisodeCognition(Protocol):
+    """One episode's cognition (``vlaprobe.cognition.Cognition``, as ``live.serve.DiarcCognition`` spells it)."""
+
+    subgoals: Sequence[SubgoalState]
+
+    def step(self, object_values: np.ndarray, action_values: np.ndarray) -> CognitionStep: ...
 
 
-class CognitionLike(Protocol):
-    def step(self, object_values: np.ndarray, action_values: np.ndarray) -> CognitionStepLike: ...
-
-
-class StepRecordLike(Protocol):
-    """What the builder reads from a step record (the step loop's ``StepRecord`` or a stored step)."""
-
-    t: int
-    hidden: np.ndarray
-    object_atoms: np.ndarray | None
-    action_atoms: np.ndarray | None
-    action: np.ndarray | None
-    predicted_action: np.ndarray | None
-    success: bool
-    terminal: bool
-
-
-MakeCognition = Callable[[dict[str, list[str]], Any, dict[str, np.ndarray] | None], CognitionLike]
+MakeCognition = Callable[[dict[str, list[str]], Goal, dict[str, np.ndarray] | None], EpisodeCognition]
 """(atoms per head, goal, probed per head or None for truth) -> a fresh cognition for one episode."""
 
 
@@ -86,16 +71,16 @@ class EpisodeSpec:
     max_steps: int
     source: str
     """"live" or "store"."""
-    goal: Any
-    """:class:`vlaprobe.symbols.Goal` of the task."""
+    goal: Goal
+    """The task's goal."""
     atoms: dict[str, list[str]]
     """Atom names per head, in vocabulary order."""
     key: str = ""
     """Store episode key (store source only)."""
 
 
-def _ms(timings: Any, name: str) -> float:
-    return float(getattr(timings, name, 0.0) or 0.0) if timings is not None else 0.0
+def _ms(timings: StepTimings | None, name: str) -> float:
+    return float(getattr(timings, name)) if timings is not None else 0.0
 
 
 def _floats(a: np.ndarray | None) -> list[float] | None:
@@ -105,7 +90,7 @@ def _floats(a: np.ndarray | None) -> list[float] | None:
     return None if not np.isfinite(a).all() else [round(float(x), 5) for x in a]
 
 
-def _violations(items: Sequence[Any]) -> list[P.Violation]:
+def _violations(items: Sequence[Violation]) -> list[P.Violation]:
     return [
         P.Violation(
             rule=str(v.rule), message=str(v.message), atoms=[str(a) for a in v.atoms], since=int(v.since)
@@ -114,11 +99,11 @@ def _violations(items: Sequence[Any]) -> list[P.Violation]:
     ]
 
 
-def _events(items: Sequence[Any]) -> list[P.Event]:
+def _events(items: Sequence[Event]) -> list[P.Event]:
     return [P.Event(kind=e.kind, t=int(e.t), message=str(e.message)) for e in items]
 
 
-def _subgoals(items: Sequence[Any]) -> list[P.SubgoalState]:
+def _subgoals(items: Sequence[SubgoalState]) -> list[P.SubgoalState]:
     return [P.SubgoalState(index=int(g.index), name=str(g.name), status=str(g.status)) for g in items]
 
 
@@ -150,13 +135,13 @@ class StepBuilder:
     """First step at which the task's own success check held."""
 
     def __post_init__(self) -> None:
-        self._cog: CognitionLike | None = None
-        self._cog_truth: CognitionLike | None = None
+        self._cog: EpisodeCognition | None = None
+        self._cog_truth: EpisodeCognition | None = None
 
     def start_message(self) -> P.EpisodeStart:
         s = self.spec
         probed = {h: np.asarray(self.readout.probed[h], bool) for h in HEADS}
-        subgoals = getattr(self._cognition(), "subgoals", None) or []
+        subgoals = self._cognition().subgoals
         return P.EpisodeStart(
             episode_id=self.episode_id,
             source="store" if s.source == "store" else "live",
@@ -168,20 +153,19 @@ class StepBuilder:
             atoms=P.HeadNames(object=list(s.atoms["object"]), action=list(s.atoms["action"])),
             probed=P.HeadFlags(**{h: [bool(x) for x in probed[h]] for h in HEADS}),
             subgoals=[P.SubgoalInfo(index=int(g.index), name=str(g.name)) for g in subgoals],
-            goal_objects=[
-                str(o) for o in (getattr(s.goal, "pick", None), getattr(s.goal, "place", None)) if o
-            ],
+            goal_objects=[str(o) for o in (s.goal.pick, s.goal.place) if o],
             store_episode=f"{STORE_PREFIX}{s.key}" if s.source == "store" and s.key else None,
         )
 
-    def _cognition(self) -> CognitionLike:
+    def _cognition(self) -> EpisodeCognition:
         if self._cog is None:
             probed = {h: np.asarray(self.readout.probed[h], bool) for h in HEADS}
             self._cog = self.make_cognition(self.spec.atoms, self.spec.goal, probed)
         return self._cog
 
-    def step(self, rec: StepRecordLike, timings: Any = None) -> P.Step:
+    def step(self, rec: StepRecord) -> P.Step:
         """The ``step`` message of one record (``image`` left empty: the hub attaches images)."""
+        timings = rec.timings
         t = int(rec.t)
         t0 = time.perf_counter()
         reading = self.readout.read(rec.hidden)
@@ -241,7 +225,7 @@ class StepBuilder:
             truth_events=truth_events,
             truth_subgoals=[] if ct is None else _subgoals(ct.subgoals),
             truth_progress=None if ct is None else float(ct.progress),
-            perturbed=bool(getattr(rec, "perturbed", False)),
+            perturbed=bool(rec.perturbed),
             action=_floats(rec.action),
             predicted_action=_floats(rec.predicted_action),
             timings=P.Timings(

@@ -18,10 +18,11 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, TypeVar
+from typing import TypeVar
 
 from fastapi import FastAPI, HTTPException, Request
 from fastapi.responses import Response
+from typing_extensions import TypeVarTuple, Unpack
 
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.live import protocol as P
@@ -30,6 +31,7 @@ from vlaprobe.live.replay import StoreReplays
 from vlaprobe.live.session import encode_jpeg, public_message
 
 T = TypeVar("T")
+Ts = TypeVarTuple("Ts")
 CACHE_BYTES = 64 << 20
 """JSON of finished episodes kept for repeated reads (a LIBERO episode of the tiny model: ~1 MB)."""
 
@@ -61,7 +63,7 @@ class Reader:
         self._cached = 0
         self._lock = threading.Lock()
 
-    async def run(self, fn: Callable[..., T], *args: Any) -> T:
+    async def run(self, fn: Callable[[Unpack[Ts]], T], *args: Unpack[Ts]) -> T:
         """``fn(*args)`` in the worker; :class:`Busy` when ``limit`` reads already wait."""
         if self._waiting >= self.limit:
             raise Busy
@@ -71,7 +73,7 @@ class Reader:
         finally:
             self._waiting -= 1
 
-    def _paced(self, fn: Callable[..., T], args: tuple[Any, ...]) -> T:
+    def _paced(self, fn: Callable[[Unpack[Ts]], T], args: tuple[Unpack[Ts]]) -> T:
         wait = self._free_at - time.monotonic()
         if wait > 0 and self.live():
             time.sleep(wait)

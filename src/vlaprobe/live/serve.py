@@ -13,25 +13,35 @@ import socket
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from vlaprobe import __version__
 from vlaprobe.configs.checks import check_serve, step_limit
+from vlaprobe.configs.monitor import CognitionConfig
 from vlaprobe.configs.serve import ServeConfig
+from vlaprobe.envs.base import TaskEnv
+from vlaprobe.envs.checks import check_inits
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.live import protocol as P
 from vlaprobe.live.app import Engine, Limits, create_app
-from vlaprobe.live.pipeline import HEADS, EpisodeSpec, Reading, StepBuilder
+from vlaprobe.live.pipeline import HEADS, EpisodeSpec, MakeCognition, Reading, StepBuilder
 from vlaprobe.live.replay import StoreReplays
 from vlaprobe.live.sources import Simulator, StoreEpisodes
+from vlaprobe.policies.base import VLAPolicy
+from vlaprobe.rollout.runner import MakeDriver, default_threads
+from vlaprobe.symbols import Goal
+
+if TYPE_CHECKING:
+    from vlaprobe.cognition import Cognition, CognitionStep
+    from vlaprobe.probes.probeset import ProbeSet
 
 
 class ProbeReading:
     """The probes' readout (``vlaprobe.cognition.readout``, shared with ``vlaprobe monitor``) as a Readout."""
 
-    def __init__(self, probes: Any, layers: dict[str, int] | None = None) -> None:
+    def __init__(self, probes: ProbeSet, layers: dict[str, int] | None = None) -> None:
         from vlaprobe.cognition.readout import ProbeReadout
 
         self.readout = ProbeReadout(probes, layers=layers)
@@ -47,24 +57,24 @@ class ProbeReading:
 class DiarcCognition:
     """A :class:`vlaprobe.cognition.Cognition` whose belief diffs are spelled as DIARC terms (``left_of(a,b)``)."""
 
-    def __init__(self, cognition: Any) -> None:
+    def __init__(self, cognition: Cognition) -> None:
         from vlaprobe.cognition import diarc_term
 
         self.cognition, self._term = cognition, diarc_term
         self.subgoals = list(cognition.subgoals.states())
 
-    def step(self, object_values: np.ndarray, action_values: np.ndarray) -> Any:
+    def step(self, object_values: np.ndarray, action_values: np.ndarray) -> CognitionStep:
         s = self.cognition.step(object_values, action_values)
         term = self._term
         return replace(s, asserted=tuple(map(term, s.asserted)), retracted=tuple(map(term, s.retracted)))
 
 
-def cognition_factory(config: Any = None) -> Callable[..., Any]:
+def cognition_factory(config: CognitionConfig | None = None) -> MakeCognition:
     """Per episode: a fresh :class:`vlaprobe.cognition.Cognition` over the episode's atoms and goal, built as
     ``vlaprobe monitor`` builds it (predictions: with the probes' ``probed`` mask; truth: without)."""
     from vlaprobe.cognition import Cognition
 
-    def make(atoms: dict[str, list[str]], goal: Any, probed: dict[str, np.ndarray] | None) -> DiarcCognition:
+    def make(atoms: dict[str, list[str]], goal: Goal, probed: dict[str, np.ndarray] | None) -> DiarcCognition:
         return DiarcCognition(Cognition(atoms["object"], atoms["action"], goal, config, probed=probed))
 
     return make
@@ -105,7 +115,7 @@ def resolve_token(cfg: ServeConfig) -> str | None:
     return token
 
 
-def load_probes(cfg: ServeConfig) -> Any:
+def load_probes(cfg: ServeConfig) -> ProbeSet:
     from vlaprobe.probes import ProbeSet
 
     if cfg.probes.is_file():
@@ -121,13 +131,13 @@ def load_probes(cfg: ServeConfig) -> Any:
 
 def build_engine(
     cfg: ServeConfig,
-    probes: Any,
+    probes: ProbeSet,
     *,
-    policy: Any = None,
-    make_env: Callable[[int], Any] | None = None,
+    policy: VLAPolicy | None = None,
+    make_env: Callable[[int], TaskEnv] | None = None,
     tasks: dict[int, str] | None = None,
     num_init_states: int | None = None,
-    make_driver: Callable[..., Any] | None = None,
+    make_driver: MakeDriver | None = None,
 ) -> Engine:
     """Everything the app serves. Without ``policy``/``make_env``/``tasks`` the real model and LIBERO are used."""
     layers = {h: v for h, v in (("object", cfg.object_layer), ("action", cfg.action_layer)) if v is not None}
@@ -140,7 +150,6 @@ def build_engine(
     if policy is None:
         import torch
 
-        from vlaprobe.collection.worker import default_threads
         from vlaprobe.configs.policy import PolicyConfig
         from vlaprobe.policies import make_policy
 
@@ -151,12 +160,13 @@ def build_engine(
     probes.check(model_id=policy.model_id, pooling=policy.pooling)
     if make_env is None or tasks is None:
         from vlaprobe.envs import make_env as make_task_env
-        from vlaprobe.envs.libero import _benchmark, suite_tasks
+        from vlaprobe.envs.libero import num_init_states as init_states
+        from vlaprobe.envs.libero import suite_tasks
 
         tasks = dict(suite_tasks(cfg.env.suite))
-        num_init_states = len(_benchmark(cfg.env.suite).get_task_init_states(0))  # no simulator needed
+        num_init_states = init_states(cfg.env.suite, 0)  # no simulator needed
 
-        def make_env(task: int) -> Any:
+        def make_env(task: int) -> TaskEnv:
             return make_task_env(task, cfg.env)
 
     extra = {} if make_driver is None else {"make_driver": make_driver}
@@ -172,7 +182,7 @@ def build_engine(
         **extra,
     )
     replays = None if cfg.store is None else store_replays(cfg.store, probes, make_builder)
-    atoms = {h: list(probes.meta["heads"][h]["atom_names"]) for h in HEADS}
+    atoms = {h: probes.atom_names(h) for h in HEADS}
     kept = {h: set(probes.atoms(h)) for h in HEADS}
     hello = P.Hello(
         version=__version__,
@@ -196,14 +206,12 @@ def build_engine(
     )
 
 
-def store_replays(store: Path, probes: Any, make_builder: Callable[..., StepBuilder]) -> StoreReplays:
+def store_replays(store: Path, probes: ProbeSet, make_builder: Callable[..., StepBuilder]) -> StoreReplays:
     """The store's episodes for replay: checked intact (the repair advice otherwise) and matching the probes."""
     episodes = StoreEpisodes(store)
-    store_model = episodes.store.meta.get("model_id")
-    if store_model is not None:
-        probes.check(model_id=str(store_model))
+    probes.check(model_id=episodes.store.model_id)
     for h in HEADS:
-        if episodes.atoms[h] != list(probes.meta["heads"][h]["atom_names"]):
+        if episodes.atoms[h] != probes.atom_names(h):
             raise VlaprobeError(
                 f"the probes' {h} atoms differ from store {store}'s; pass the store the probes were "
                 "trained on (--store) or its probes (--probes)"
@@ -241,6 +249,7 @@ def main(cfg: ServeConfig) -> int:
     import uvicorn
 
     check_serve(cfg)
+    check_inits(cfg.env, ())
     token = resolve_token(cfg)
     limits = limits_of(cfg, token)
     probes = load_probes(cfg)

@@ -22,7 +22,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
@@ -31,18 +31,7 @@ from vlaprobe.live import protocol as P
 from vlaprobe.live.hub import Hub
 from vlaprobe.live.pipeline import EpisodeSpec, StepBuilder
 from vlaprobe.live.recorder import Recorder
-
-
-class Control(Protocol):
-    """Between-step commands (the step loop's ``EpisodeControl``)."""
-
-    def stop(self) -> None: ...
-    def pause(self) -> None: ...
-    def resume(self) -> None: ...
-    def drop(self, steps: int = 8) -> None: ...
-
-    @property
-    def stopped(self) -> bool: ...
+from vlaprobe.rollout import EpisodeControl, StepRecord
 
 
 class EpisodeSource(Protocol):
@@ -50,7 +39,7 @@ class EpisodeSource(Protocol):
 
     spec: EpisodeSpec
 
-    def records(self, control: Any) -> Iterator[Any]: ...
+    def records(self, control: EpisodeControl | None = None) -> Iterator[StepRecord]: ...
 
 
 def encode_jpeg(image: np.ndarray, quality: int = 90) -> bytes:
@@ -91,7 +80,7 @@ class Run:
     episode_id: str
     source: str
     """"live" (the simulator) or "replay" (a stored episode)."""
-    control: Any
+    control: EpisodeControl
     on_error: Callable[[str], None] | None = None
     """Tells the client that asked for the episode why it could not begin (other clients never saw it)."""
     done: threading.Event = field(default_factory=threading.Event)
@@ -111,7 +100,9 @@ class Session:
         self.hub, self.make_builder, self.recordings = hub, make_builder, recordings
         self.running: Run | None = None
         self._lock = threading.Lock()
-        self._jobs: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._jobs: queue.SimpleQueue[tuple[Run, Callable[[], EpisodeSource], bool] | None] = (
+            queue.SimpleQueue()
+        )
         self._on_exit = on_exit
         self._thread = threading.Thread(target=self._work, name="episodes", daemon=True)
         self._thread.start()
@@ -127,7 +118,7 @@ class Session:
         task: int,
         source: str,
         make_source: Callable[[], EpisodeSource],
-        control: Any,
+        control: EpisodeControl,
         record: bool,
         on_error: Callable[[str], None] | None = None,
     ) -> str:
@@ -162,8 +153,8 @@ class Session:
             hub.threadsafe(hub.begin, run.episode_id, start.model_dump_json())
             began = True
             for rec in source.records(run.control):
-                msg = builder.step(rec, getattr(rec, "timings", None))
-                msg.drop_left = int(getattr(run.control, "drop_left", 0))
+                msg = builder.step(rec)
+                msg.drop_left = run.control.drop_left
                 jpeg = encode_jpeg(rec.model_image)
                 state = msg.model_dump_json(exclude={"image"})
                 if recorder is not None:

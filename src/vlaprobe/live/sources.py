@@ -1,8 +1,9 @@
 """Where an episode's step records come from: the simulator through the one step loop, or a stored episode.
 
 :class:`Simulator` holds the observed model for the server's life and one simulator at a time (rebuilt when
-the task changes); each live episode runs ``vlaprobe.rollout.run_episode``, the loop collection runs.
-:class:`StoreEpisodes` reads an activation store: its episodes replay without the simulator, their stored
+the task changes); each live episode runs through ``vlaprobe.rollout.EpisodeRunner``, as collection's do.
+:class:`StoreEpisodes` reads an activation store: its episodes replay without the simulator, as the same
+``StepRecord`` (``ActivationStore.episode(key).records()``) paced by ``vlaprobe.rollout.paced``, their stored
 images and hidden states going through the same probes and cognition.
 """
 
@@ -11,21 +12,21 @@ from __future__ import annotations
 import random
 import re
 import threading
-import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from vlaprobe.envs.base import TaskEnv
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.live import protocol as P
 from vlaprobe.live.pipeline import STORE_PREFIX, EpisodeSpec
-from vlaprobe.rollout import EpisodeControl, make_driver, run_episode
+from vlaprobe.policies.base import VLAPolicy
+from vlaprobe.rollout import EnvCache, EpisodeControl, EpisodeRunner, StepRecord, make_driver, paced
+from vlaprobe.rollout.drivers import DriverName
+from vlaprobe.rollout.runner import MakeDriver
 
-MakeEnv = Callable[[int], Any]
-MakeDriver = Callable[[str, Any, Any, int], Any]
+MakeEnv = Callable[[int], TaskEnv]
 
 
 class Simulator:
@@ -33,7 +34,7 @@ class Simulator:
 
     def __init__(
         self,
-        policy: Any,
+        policy: VLAPolicy,
         make_env: MakeEnv,
         tasks: dict[int, str],
         *,
@@ -47,23 +48,19 @@ class Simulator:
         """``step_limit``: the longest budget the simulator runs (LIBERO's horizon less the settling steps);
         ``num_init_states``: per task, known up front (a bad init is then refused before the episode starts)."""
         self.policy, self.tasks = policy, tasks
-        self._make_env, self._make_driver = make_env, make_driver
+        self.runner = EpisodeRunner(policy, EnvCache(make_env, on_new=self._new_env), make_driver)
         self.max_steps, self.post_success_steps = max_steps, post_success_steps
         self.step_limit = step_limit
         self._rng = random.Random(seed)
-        self._env: Any = None
         self._lock = threading.Lock()
         self.num_init_states = num_init_states or 0
         self._known_inits = num_init_states
 
-    def env_for(self, task: int) -> Any:
-        if self._env is None or self._env.task_index != task:
-            if self._env is not None:
-                self._env.close()
-                self._env = None
-            self._env = self._make_env(task)
-            self.num_init_states = int(self._env.num_init_states)
-        return self._env
+    def _new_env(self, task: int, env: TaskEnv) -> None:
+        self.num_init_states = int(env.num_init_states)
+
+    def env_for(self, task: int) -> TaskEnv:
+        return self.runner.envs.get(task)
 
     def resolve_task(self, task: int | str) -> int:
         """A task index from an index or an instruction (trimmed, any case); VlaprobeError if none fits."""
@@ -99,9 +96,7 @@ class Simulator:
         return LiveSource(self, task, init, driver, max_steps or self.max_steps, seed)
 
     def close(self) -> None:
-        if self._env is not None:
-            self._env.close()
-            self._env = None
+        self.runner.close()
 
 
 class LiveSource:
@@ -110,7 +105,10 @@ class LiveSource:
     def __init__(
         self, sim: Simulator, task: int, init: int | str, driver: str, max_steps: int, seed: int
     ) -> None:
-        self.sim, self.driver, self.max_steps, self.seed = sim, driver, max_steps, seed
+        if driver not in ("expert", "policy"):
+            raise VlaprobeError(f"unknown driver {driver!r}; use 'expert' or 'policy'")
+        self.sim, self.max_steps, self.seed = sim, max_steps, seed
+        self.driver: DriverName = "expert" if driver == "expert" else "policy"
         with sim._lock:
             env = sim.env_for(task)
             if init == "random":
@@ -130,33 +128,16 @@ class LiveSource:
             atoms={"object": list(vocab.object_atoms), "action": list(vocab.action_atoms)},
         )
 
-    def records(self, control: EpisodeControl) -> Iterator[Any]:
-        driver = self.sim._make_driver(self.driver, self.env, self.sim.policy, self.seed)
-        yield from run_episode(
+    def records(self, control: EpisodeControl | None = None) -> Iterator[StepRecord]:
+        return self.sim.runner.run(
             self.env,
-            self.sim.policy,
-            driver,
+            self.driver,
             init=self.init,
+            seed=self.seed,
             max_steps=self.max_steps,
             post_success_steps=self.sim.post_success_steps,
             control=control,
         )
-
-
-@dataclass
-class StoredStep:
-    """One stored row, shaped like the step loop's record for the message builder."""
-
-    t: int
-    model_image: np.ndarray
-    hidden: np.ndarray
-    object_atoms: np.ndarray
-    action_atoms: np.ndarray
-    action: np.ndarray
-    predicted_action: np.ndarray
-    success: bool
-    terminal: bool
-    timings: Any = None
 
 
 class StoreEpisodes:
@@ -173,9 +154,9 @@ class StoreEpisodes:
         require_intact(path)  # every episode's metadata and chunk files (cheap; decoding waits for a read)
         self.infos = {self.PREFIX + i.key: i for i in self.store.episodes()}
         self._verified: set[str] = set()
-        names = self.store.meta["atom_names"]
+        names = self.store.atom_names
         self.atoms = {"object": list(names["object"]), "action": list(names["action"])}
-        self.created = str(self.store.meta.get("created", ""))
+        self.created = self.store.created
 
     def list(self) -> list[P.EpisodeListItem]:
         out = []
@@ -185,7 +166,7 @@ class StoreEpisodes:
                     id=eid,
                     source="store",
                     task=info.task,
-                    instruction=str(self._attrs(info.key).get("instruction", "")),
+                    instruction=self.store.episode(info.key).attributes.instruction,
                     init=info.init,
                     driver=str(info.driver),
                     steps=info.length,
@@ -194,9 +175,6 @@ class StoreEpisodes:
                 )
             )
         return out
-
-    def _attrs(self, key: str) -> dict[str, Any]:
-        return dict(self.store.episode(key).attrs)
 
     def verify(self, key: str) -> None:
         """Decode an episode's chunks once before it is first read (``vlaprobe info --verify``'s check): a
@@ -212,21 +190,21 @@ class StoreEpisodes:
         self._verified.add(key)
 
     def spec(self, episode_id: str) -> EpisodeSpec:
-        from vlaprobe.symbols import Goal
-
         info = self.infos.get(episode_id)
         if info is None:
             raise VlaprobeError(f"no stored episode {episode_id!r}; GET /api/episodes lists them")
         self.verify(info.key)
-        attrs = self._attrs(info.key)
+        attrs = self.store.episode(info.key).attributes
+        if attrs.goal is None:
+            raise VlaprobeError(f"stored episode {info.key} records no task goal; collect it again")
         return EpisodeSpec(
             task=info.task,
-            instruction=str(attrs.get("instruction", "")),
+            instruction=attrs.instruction,
             init=info.init,
             driver=str(info.driver),
             max_steps=info.length,
             source="store",
-            goal=Goal(**attrs["goal"]),
+            goal=attrs.goal,
             atoms=self.atoms,
             key=info.key,
         )
@@ -248,43 +226,5 @@ class StoreSource:
     def __init__(self, episodes: StoreEpisodes, spec: EpisodeSpec, hz: float | None) -> None:
         self.episodes, self.spec, self.hz = episodes, spec, hz
 
-    def records(self, control: EpisodeControl | None = None) -> Iterator[StoredStep]:
-        info = self.episodes.infos[StoreEpisodes.PREFIX + self.spec.key]
-        arrays = self.episodes.store.episode(self.spec.key)
-        hidden = np.asarray(arrays["hidden"])  # (layers, T, ...) as stored
-        cols = {
-            k: np.asarray(arrays[k])
-            for k in ("image", "object_atoms", "action_atoms", "action", "predicted_action")
-        }
-        n = info.length
-        next_at = time.monotonic()
-        for t in range(n):
-            if control is not None:
-                control.wait_while_paused()
-                if control.stopped:
-                    return
-            if self.hz:
-                if not _sleep_until(next_at, control):
-                    return  # stopped while waiting
-                next_at = max(next_at + 1.0 / self.hz, time.monotonic() - 1.0)
-            last = t == n - 1
-            yield StoredStep(
-                t=t,
-                model_image=cols["image"][t],
-                hidden=hidden[:, t].astype(np.float32),
-                object_atoms=cols["object_atoms"][t],
-                action_atoms=cols["action_atoms"][t],
-                action=cols["action"][t],
-                predicted_action=cols["predicted_action"][t],
-                success=info.success_step is not None and t >= info.success_step,
-                terminal=last,
-            )
-
-
-def _sleep_until(when: float, control: EpisodeControl | None) -> bool:
-    """Wait until ``when`` (monotonic), waking every 50 ms to see a stop; False if stopped."""
-    while (left := when - time.monotonic()) > 0:
-        if control is not None and control.stopped:
-            return False
-        time.sleep(min(left, 0.05))
-    return control is None or not control.stopped
+    def records(self, control: EpisodeControl | None = None) -> Iterator[StepRecord]:
+        return paced(self.episodes.store.episode(self.spec.key).records(), control, self.hz)

@@ -1,4 +1,5 @@
-"""Policies that act in LIBERO: VLA models exposing their hidden states, and the scripted expert.
+"""Policies that act in LIBERO: VLA models exposing their hidden states (the scripted expert is in
+``vlaprobe.envs.libero_expert``, next to the env it reads).
 
 :func:`make_policy` (from a :class:`~vlaprobe.configs.policy.PolicyConfig`) and :func:`load_policy` (the same
 with keyword arguments) import torch only when called, so importing this package stays cheap.

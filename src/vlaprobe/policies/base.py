@@ -7,9 +7,11 @@ This module stays light (numpy only) and knows no implementation: ``vlaprobe.pol
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal, Protocol, runtime_checkable
+from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
+
+from vlaprobe.files import JsonObject
 
 Pooling = Literal["last_prompt", "mean_text", "mean_all", "action_tokens"]
 """How each layer's states over the sequence become the recorded vector:
@@ -59,6 +61,6 @@ class VLAPolicy(Protocol):
         robosuite renders it); the policy applies OpenVLA's LIBERO preprocessing itself."""
         ...
 
-    def describe(self) -> dict[str, Any]:
+    def describe(self) -> JsonObject:
         """JSON-ready metadata: model id, config, dims, pooling, dtype, device."""
         ...

@@ -10,10 +10,10 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
 
 from vlaprobe.configs.hypotheses import CompareSplitsConfig
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import JsonObject
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,7 @@ class PredicateRow:
         return None if self.within is None or self.across is None else self.within - self.across
 
 
-def _evaluation(folder: Path) -> dict[str, Any]:
+def _evaluation(folder: Path) -> JsonObject:
     try:
         return json.loads((folder / "evaluation.json").read_text())
     except (OSError, ValueError):
@@ -41,7 +41,7 @@ def _evaluation(folder: Path) -> dict[str, Any]:
         ) from None
 
 
-def _at_best(head: dict[str, Any], metric: str) -> dict[str, tuple[float | None, float | None, float | None]]:
+def _at_best(head: JsonObject, metric: str) -> dict[str, tuple[float | None, float | None, float | None]]:
     """predicate -> (value, low, high) at the head's best layer."""
     i = head["best"]["index"]
     level = head["probe"][metric]["predicate"]

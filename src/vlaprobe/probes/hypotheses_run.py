@@ -28,7 +28,8 @@ from vlaprobe.probes.hypotheses import (
 FILE = "hypotheses.json"
 
 
-def _read(path: Path) -> dict:
+def read_json(path: Path) -> dict:
+    """A JSON file of the probe folder (``hypotheses.json``, ``probes.json`` ...), or a one-line error."""
     try:
         return json.loads(path.read_text())
     except (OSError, ValueError):
@@ -40,7 +41,7 @@ def run_curves(probes: Path, store: Path | None, resamples: int, seed: int) -> L
     from vlaprobe.probes import ProbeSet
     from vlaprobe.probes.data import load_store
 
-    meta, ev = _read(probes / "probes.json"), _read(probes / "evaluation.json")
+    meta, ev = read_json(probes / "probes.json"), read_json(probes / "evaluation.json")
     if ev["split"]["folds"] != 1:
         raise VlaprobeError(
             f"{probes} was trained with {ev['split']['folds']} folds, and its saved probes were refit on every "
@@ -99,18 +100,3 @@ def main(cfg: HypothesesConfig) -> int:
         for v in result.verdicts:
             print(v.sentence)
     return 0
-
-
-def report_section(probes: Path) -> object | None:
-    """Report section provider: the H1/H2 section when ``hypotheses.json`` is in the probe folder."""
-    path = Path(probes) / FILE
-    if not path.is_file():
-        return None
-    from vlaprobe.reports.sections import Section
-
-    return Section(
-        id="hypotheses",
-        title="H1 and H2: which layers encode objects and actions",
-        template="hypotheses.html",
-        data=_read(path),
-    )

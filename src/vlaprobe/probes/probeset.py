@@ -16,14 +16,13 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import write_atomic
+from vlaprobe.files import JsonObject, write_atomic
 
 FORMAT = "vlaprobe-probes"
 FORMAT_VERSION = 1
@@ -34,7 +33,7 @@ META_FILE = "probes.json"
 class ProbeSet:
     """The per-layer probes of every head of one observer model, ready for inference."""
 
-    def __init__(self, meta: dict[str, Any], tensors: dict[str, torch.Tensor]) -> None:
+    def __init__(self, meta: JsonObject, tensors: dict[str, torch.Tensor]) -> None:
         self.meta = meta
         self.tensors = {k: v.float().contiguous() for k, v in tensors.items()}
         self.layers: list[int] = list(meta["layers"])
@@ -61,13 +60,42 @@ class ProbeSet:
         """Kept atoms of ``head``: the probe outputs, in weight-column order."""
         return list(self.meta["heads"][head]["kept"])
 
+    def atom_names(self, head: str) -> list[str]:
+        """Every atom of ``head`` in vocabulary order, probed or not (:meth:`atoms`: the probed ones)."""
+        return list(self.meta["heads"][head].get("atom_names") or self.atoms(head))
+
+    def dropped(self, head: str) -> dict[str, float]:
+        """Atoms of ``head`` left unprobed (too rare or too common in training): atom -> training frequency."""
+        return {
+            str(d["atom"]): float(d["train_frequency"]) for d in self.meta["heads"][head].get("dropped", [])
+        }
+
+    @property
+    def num_hidden_states(self) -> int:
+        """Hidden states of the observer model (the probes may cover a subset: :attr:`layers`)."""
+        return int(self.meta["num_hidden_states"])
+
+    @property
+    def hidden_size(self) -> int:
+        return int(self.meta["hidden_size"])
+
+    @property
+    def where(self) -> str:
+        """The folder the probes were loaded from, for messages."""
+        return str(self.meta.get("path", "these probes"))
+
+    @property
+    def refit_on_all(self) -> bool:
+        """The probes were refit on every episode after evaluation (none of them is held out any more)."""
+        return str(self.meta.get("trained_on", {}).get("split", "")).startswith("all")
+
     def best_layer(self, head: str) -> int:
         """Hidden-state index chosen for ``head`` (by ``meta["heads"][head]["best_metric"]``)."""
         return int(self.meta["heads"][head]["best_layer"])
 
     def check(self, model_id: str | None = None, pooling: str | None = None) -> None:
         """Raise VlaprobeError unless these probes were trained on ``model_id`` with ``pooling``."""
-        where = self.meta.get("path", "these probes")
+        where = self.where
         if model_id is not None and model_id != self.model_id:
             raise VlaprobeError(
                 f"probes in {where} were trained on model {self.model_id!r}, not {model_id!r}; "

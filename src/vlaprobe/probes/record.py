@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import time
-from typing import Any
 
 import numpy as np
 
 from vlaprobe.configs.train import TrainConfig
-from vlaprobe.files import versions
+from vlaprobe.files import JsonObject, versions
 from vlaprobe.probes.data import ProbeData
 from vlaprobe.probes.evaluate import CrossFit
 from vlaprobe.probes.metrics import METRICS
@@ -26,7 +25,7 @@ from vlaprobe.probes.results import (
 from vlaprobe.probes.split import Fold, LabelFilter
 
 
-def config_dict(cfg: TrainConfig) -> dict[str, Any]:
+def config_dict(cfg: TrainConfig) -> JsonObject:
     from vlaprobe.configs import config_to_dict
 
     return config_to_dict(cfg)
@@ -40,7 +39,7 @@ def probe_meta(
     filters: dict[str, LabelFilter],
     results: dict[str, HeadResult],
     refit: bool,
-) -> dict[str, Any]:
+) -> JsonObject:
     return {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,

@@ -18,13 +18,12 @@ import json
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
 
 import dacite
 import numpy as np
 
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import write_atomic
+from vlaprobe.files import Json, JsonObject, write_atomic
 
 FORMAT = "vlaprobe-evaluation"
 FORMAT_VERSION = 3
@@ -42,7 +41,7 @@ PARTS = (
 )
 """The metric summaries a head may have, in display order."""
 
-Nested = list[Any]
+Nested = list[Json]
 """A JSON array of any depth: floats, ints or None (NaN)."""
 
 
@@ -254,7 +253,7 @@ class Evaluation:
     bootstrap: Bootstrap
     controls: Controls
     heads: dict[str, HeadResult]
-    config: dict[str, Any]
+    config: JsonObject
     seeds: dict[str, int]
     versions: dict[str, str]
     skipped_heads: dict[str, SkippedHead] = field(default_factory=dict)
@@ -266,7 +265,7 @@ class Evaluation:
 # -- conversions -------------------------------------------------------------------------------------------
 
 
-def nested(x: Any) -> Nested:
+def nested(x: object) -> Nested:
     """A float array as nested lists, NaN -> None, rounded to 5 decimals (ints and bools as they are)."""
     a = np.asarray(x)
     if a.dtype.kind in "iub":
@@ -275,7 +274,7 @@ def nested(x: Any) -> Nested:
     return np.where(np.isnan(rounded), None, rounded).tolist()
 
 
-def number(x: Any) -> float | None:
+def number(x: object) -> float | None:
     """One float rounded to 5 decimals, NaN -> None."""
     x = float(x)
     return None if math.isnan(x) else round(x, 5)
@@ -316,3 +315,15 @@ def read_evaluation(folder: str | Path) -> Evaluation:
         return dacite.from_dict(Evaluation, data, config=dacite.Config(check_types=False))
     except (dacite.DaciteError, TypeError, ValueError) as exc:
         raise VlaprobeError(f"{path} is damaged ({exc}); run vlaprobe train again") from None
+
+
+def read_test_episodes(folder: str | Path) -> list[str]:
+    """The held-out test episodes of ``<folder>/evaluation.json`` (its ``split``; the rest is not read, so a
+    reader that needs only the split accepts an evaluation of any version)."""
+    path = Path(folder) / EVALUATION_FILE
+    try:
+        return [str(k) for k in json.loads(path.read_text())["split"]["test_episodes"]]
+    except (OSError, ValueError, KeyError, TypeError):
+        raise VlaprobeError(
+            f"cannot read the held-out test episodes from {path}; pass the folder written by vlaprobe train"
+        ) from None

@@ -255,17 +255,3 @@ def main(cfg: CompareStoresConfig) -> int:
     else:
         print("\n".join(table_lines(result)))
     return 0
-
-
-def report_section(probes: Path) -> object | None:
-    """Report section provider: the stores side by side when ``store_comparison.json`` is in the probe folder."""
-    path = Path(probes) / FILE
-    if not path.is_file():
-        return None
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-    from vlaprobe.reports.sections import Section
-
-    return Section(id="stores", title="Stores side by side", template="store_comparison.html", data=data)

@@ -6,10 +6,10 @@ import base64
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import jinja2
 
+from vlaprobe.files import Json, JsonObject
 from vlaprobe.probes.results import Evaluation
 from vlaprobe.reports.figures import metric_label
 from vlaprobe.reports.sections import Section
@@ -45,7 +45,7 @@ class Figure:
         return base64.b64encode(self.png).decode()
 
 
-def _fmt(value: Any, ci: Any = None, sd: Any = None) -> str:
+def _fmt(value: Json, ci: Json = None, sd: Json = None) -> str:
     """A figure with its interval and spread, as HTML-safe text ("–" when undefined)."""
     if value is None:
         return "–"
@@ -57,15 +57,11 @@ def _fmt(value: Any, ci: Any = None, sd: Any = None) -> str:
     return text
 
 
-def _environment() -> jinja2.Environment:
+def _environment(packages: Sequence[str] = ()) -> jinja2.Environment:
+    """The page's templates, then those of the packages whose sections are on the page."""
+    names = dict.fromkeys(["vlaprobe.reports", *packages])
     env = jinja2.Environment(
-        # Sections of other packages (e.g. the cognition monitor) ship their templates with the package.
-        loader=jinja2.ChoiceLoader(
-            [
-                jinja2.PackageLoader("vlaprobe.reports", "templates"),
-                jinja2.PackageLoader("vlaprobe.cognition", "templates"),
-            ]
-        ),
+        loader=jinja2.ChoiceLoader([jinja2.PackageLoader(name, "templates") for name in names]),
         autoescape=True,
         undefined=jinja2.StrictUndefined,
         trim_blocks=True,
@@ -80,7 +76,7 @@ def _environment() -> jinja2.Environment:
 def render_page(
     title: str,
     evaluation: Evaluation,
-    tables: dict[str, Any],
+    tables: JsonObject,
     figures: Sequence[Figure],
     sections: Sequence[Section] = (),
 ) -> str:
@@ -90,7 +86,7 @@ def render_page(
         for head, t in tables.items()
     }
     return (
-        _environment()
+        _environment([s.package for s in sections])
         .get_template("page.html")
         .render(
             title=title,

@@ -22,13 +22,12 @@ import io
 import json
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from vlaprobe.configs.checks import REPORT_FOLDER, check_report
 from vlaprobe.configs.report import ReportConfig
-from vlaprobe.files import check_owned_folder, mark_folder, write_atomic
+from vlaprobe.files import Json, JsonObject, check_owned_folder, mark_folder, write_atomic
 from vlaprobe.probes.results import PARTS, Evaluation, HeadResult, arr, read_evaluation
 from vlaprobe.reports.figures import Rendered, Series, curves, heatmap, metric_label
 from vlaprobe.reports.page import Figure, render_page
@@ -42,7 +41,8 @@ def write_report(cfg: ReportConfig, sections: Sequence[Section] = ()) -> Path:
     """Write every figure, its data and the HTML page; return the page's path.
 
     ``sections`` are added to the page after the figures, followed by those the registered providers find
-    for this probe folder (e.g. the cognition monitor's, when its data file exists)."""
+    for this probe folder (the diversity of its store, H1/H2 when computed). ``vlaprobe.pipeline.report`` adds
+    the cognition monitor's section."""
     check_report(cfg)
     out = Path(cfg.out) if cfg.out is not None else Path(cfg.probes).parent / "report"
     check_owned_folder(out, REPORT_FOLDER)  # a folder of someone else's files is never written into
@@ -119,7 +119,7 @@ def _curve_figures(out: Path, evaluation: Evaluation, cfg: ReportConfig) -> list
     return figures
 
 
-def _tables(evaluation: Evaluation) -> dict[str, Any]:
+def _tables(evaluation: Evaluation) -> JsonObject:
     """The page's tables per head: headline, best layer per predicate, dropped atoms, skipped predicates."""
     return {
         head: {
@@ -159,17 +159,10 @@ def _num(v: float | None) -> str:
     return "–" if v is None else f"{v:.3f}"
 
 
-def main(cfg: ReportConfig) -> int:
-    """CLI entry: write the report and print where it is."""
-    page = write_report(cfg)
-    print(f"report written to {page}")
-    return 0
-
-
 # -- data of the figures -------------------------------------------------------------------------------
 
 
-def _list(x: np.ndarray | None) -> Any:
+def _list(x: np.ndarray | None) -> Json:
     if x is None:
         return None
     a = np.round(np.asarray(x, float), 5)
@@ -272,13 +265,13 @@ def _curve_data(
     return panels, rows
 
 
-def _at(values: list[Any], index: tuple[int, ...]) -> Any:
+def _at(values: list[Json], index: tuple[int, ...]) -> Json:
     for k in index:
         values = values[k]
     return values
 
 
-def _best_table(h: HeadResult, metrics: list[str]) -> dict[str, Any]:
+def _best_table(h: HeadResult, metrics: list[str]) -> JsonObject:
     """Per predicate at the head's best layer: every metric with CI, baseline, control and selectivity.
 
     ``<part>.<metric>.defined`` is the number of bootstrap resamples in which the figure was defined over all
@@ -287,7 +280,7 @@ def _best_table(h: HeadResult, metrics: list[str]) -> dict[str, Any]:
     i = best.index  # position of the best layer in the per-layer arrays
     rows = []
     for j, p in enumerate([*h.predicates, "(all atoms)"]):
-        row: dict[str, Any] = {"predicate": p}
+        row: JsonObject = {"predicate": p}
         for m in metrics:
             by_predicate = j < len(h.predicates)
             for part in PARTS:
@@ -313,7 +306,7 @@ def _best_table(h: HeadResult, metrics: list[str]) -> dict[str, Any]:
 # -- files --------------------------------------------------------------------------------------------
 
 
-def _write_figure(out: Path, stem: str, rendered: Rendered, rows: list[dict], data: dict[str, Any]) -> None:
+def _write_figure(out: Path, stem: str, rendered: Rendered, rows: list[dict], data: JsonObject) -> None:
     write_atomic(out / f"{stem}.png", rendered.png)
     write_atomic(out / f"{stem}.svg", rendered.svg)
     write_atomic(out / f"{stem}.json", json.dumps(data) + "\n")

@@ -2,20 +2,26 @@
 
 ``run_episode(env, policy, driver, init=..., max_steps=...)`` yields a :class:`StepRecord` per observation;
 collection buffers them into the store, a live server streams them (and pauses, stops or perturbs the
-episode through an :class:`EpisodeControl`).
+episode through an :class:`EpisodeControl`). :class:`EpisodeRunner` (with its :class:`EnvCache`) is how both
+run an episode: seeding, the driver, the loop; :func:`paced` replays stored records under the same control.
 """
 
 from vlaprobe.rollout.drivers import Driver, DriverName, ExpertDriver, PolicyDriver, make_driver
 from vlaprobe.rollout.loop import EpisodeControl, StepRecord, StepTimings, run_episode
+from vlaprobe.rollout.runner import EnvCache, EpisodeRunner, paced, seed_everything
 
 __all__ = [
     "Driver",
     "DriverName",
+    "EnvCache",
     "EpisodeControl",
+    "EpisodeRunner",
     "ExpertDriver",
     "PolicyDriver",
     "StepRecord",
     "StepTimings",
     "make_driver",
+    "paced",
     "run_episode",
+    "seed_everything",
 ]

@@ -33,9 +33,14 @@ class ExpertDriver:
     """The scripted expert acts (it reads the simulator); the model only observes."""
 
     def __init__(self, env: TaskEnv, seed: int) -> None:
-        from vlaprobe.policies.expert import ScriptedExpert
+        from vlaprobe.envs.libero import LiberoTaskEnv
+        from vlaprobe.envs.libero_expert import ScriptedExpert
 
-        self.expert = ScriptedExpert(env, seed=seed)  # type: ignore[arg-type]
+        if not isinstance(env, LiberoTaskEnv):
+            raise VlaprobeError(
+                "the scripted expert reads the LIBERO simulator; use --driver policy elsewhere"
+            )
+        self.expert = ScriptedExpert(env, seed=seed)
 
     def reset(self) -> None:
         self.expert.reset()

@@ -20,7 +20,7 @@ import numpy as np
 
 from vlaprobe.envs.base import Observation, TaskEnv
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.policies.base import VLAPolicy
+from vlaprobe.policies.base import PolicyStep, VLAPolicy
 from vlaprobe.rollout.drivers import Driver
 from vlaprobe.symbols import WorldState
 
@@ -51,8 +51,8 @@ class StepRecord:
     """Row index in the episode (0 at the first observation)."""
     step: int
     """The simulator's step counter since the settled reset."""
-    raw_image: np.ndarray
-    """The agentview render as robosuite gives it (H, W, 3) uint8, upside down."""
+    raw_image: np.ndarray | None
+    """The agentview render as robosuite gives it (H, W, 3) uint8, upside down; None from a store."""
     model_image: np.ndarray
     """(224, 224, 3) uint8, upright: the image exactly as the model saw it."""
     hidden: np.ndarray
@@ -61,16 +61,16 @@ class StepRecord:
     """bool, the vocabulary's object atoms in order."""
     action_atoms: np.ndarray
     """bool, the vocabulary's action atoms in order."""
-    world: WorldState
-    """The simulator snapshot the atoms were computed from."""
-    proprio: np.ndarray
-    """float32 (9,): end-effector position, quaternion xyzw, finger joint positions."""
+    world: WorldState | None
+    """The simulator snapshot the atoms were computed from; None from a store (which keeps it as columns)."""
+    proprio: np.ndarray | None
+    """float32 (9,): end-effector position, quaternion xyzw, finger joint positions; None if not stored."""
     action: np.ndarray
     """(7,) the action executed after this observation; NaN on the terminal row (none was executed)."""
     predicted_action: np.ndarray
     """(7,) the observer model's own action for this observation."""
-    action_tokens: np.ndarray
-    """(7,) the token ids the predicted action was decoded from."""
+    action_tokens: np.ndarray | None
+    """(7,) the token ids the predicted action was decoded from; None if not stored."""
     success: bool
     """The task's own success check holds at this observation."""
     terminal: bool
@@ -80,8 +80,8 @@ class StepRecord:
     move (:meth:`EpisodeControl.move`) displaced an object just before this observation."""
     perturbation: str
     """Which: "drop", "move", or "" (none)."""
-    timings: StepTimings
-    """Where this step's time went."""
+    timings: StepTimings | None
+    """Where this step's time went; None from a store."""
 
 
 class EpisodeControl:
@@ -142,6 +142,11 @@ class EpisodeControl:
         """Block while paused (returns at once when running or stopped)."""
         self._running.wait()
 
+    def proceed(self) -> bool:
+        """Between two steps: wait while paused; whether the episode goes on (False once stopped)."""
+        self._running.wait()
+        return not self._stop.is_set()
+
     def take_drop(self) -> bool:
         """Whether this step is perturbed (consumes one step of a pending drop)."""
         with self._lock:
@@ -153,6 +158,38 @@ class EpisodeControl:
 
 def _ms(start: float) -> float:
     return (time.perf_counter() - start) * 1000.0
+
+
+def _record(
+    t: int,
+    obs: Observation,
+    out: PolicyStep,
+    world: WorldState,
+    atoms: tuple[np.ndarray, np.ndarray],
+    action: np.ndarray,
+    terminal: bool,
+    perturbation: str,
+    timings: StepTimings,
+) -> StepRecord:
+    return StepRecord(
+        t=t,
+        step=obs.step,
+        raw_image=obs.image,
+        model_image=out.model_image,
+        hidden=out.hidden,
+        object_atoms=atoms[0],
+        action_atoms=atoms[1],
+        world=world,
+        proprio=obs.proprio,
+        action=action,
+        predicted_action=out.action,
+        action_tokens=out.action_tokens,
+        success=obs.success,
+        terminal=terminal,
+        perturbed=bool(perturbation),
+        perturbation=perturbation,
+        timings=timings,
+    )
 
 
 def run_episode(
@@ -216,37 +253,20 @@ def run_episode(
                 action[6] = GRIPPER_OPEN
                 perturbation, perturbed_any = "drop", True
         t3 = time.perf_counter()
-        yield StepRecord(
-            t=t,
-            step=obs.step,
-            raw_image=obs.image,
-            model_image=out.model_image,
-            hidden=out.hidden,
-            object_atoms=object_atoms,
-            action_atoms=action_atoms,
-            world=world,
-            proprio=obs.proprio,
-            action=action,
-            predicted_action=out.action,
-            action_tokens=out.action_tokens,
-            success=obs.success,
-            terminal=terminal,
-            perturbed=bool(perturbation),
-            perturbation=perturbation,
-            timings=StepTimings(
-                env_ms=env_ms,
-                label_ms=(t1 - t0) * 1e3,
-                model_ms=(t2 - t1) * 1e3,
-                driver_ms=(t3 - t2) * 1e3,
-                total_ms=env_ms + (t3 - t0) * 1e3,
-            ),
+        timings = StepTimings(
+            env_ms=env_ms,
+            label_ms=(t1 - t0) * 1e3,
+            model_ms=(t2 - t1) * 1e3,
+            driver_ms=(t3 - t2) * 1e3,
+            total_ms=env_ms + (t3 - t0) * 1e3,
+        )
+        yield _record(
+            t, obs, out, world, (object_atoms, action_atoms), action, terminal, perturbation, timings
         )
         if terminal:
             return
-        if control is not None:
-            control.wait_while_paused()
-            if control.stopped:
-                return
+        if control is not None and not control.proceed():
+            return
         t4 = time.perf_counter()
         obs = env.step(action)
         env_ms = _ms(t4)

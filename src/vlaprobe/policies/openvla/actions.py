@@ -12,11 +12,10 @@ Two layers, kept apart because OpenVLA keeps them apart:
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import JsonObject
 
 
 def bin_centers(n_action_bins: int = 256) -> np.ndarray:
@@ -25,7 +24,7 @@ def bin_centers(n_action_bins: int = 256) -> np.ndarray:
     return (bins[:-1] + bins[1:]) / 2.0
 
 
-def resolve_unnorm_key(norm_stats: dict[str, Any], unnorm_key: str) -> str:
+def resolve_unnorm_key(norm_stats: JsonObject, unnorm_key: str) -> str:
     """``unnorm_key`` if present, else ``unnorm_key + "_no_noops"`` (OpenVLA's LIBERO fallback)."""
     if unnorm_key in norm_stats:
         return unnorm_key
@@ -37,7 +36,7 @@ def resolve_unnorm_key(norm_stats: dict[str, Any], unnorm_key: str) -> str:
     )
 
 
-def action_stats(norm_stats: dict[str, Any], unnorm_key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def action_stats(norm_stats: JsonObject, unnorm_key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(q01, q99, mask) of ``norm_stats[key]["action"]``; a missing mask means all dimensions."""
     key = resolve_unnorm_key(norm_stats, unnorm_key)
     try:

@@ -12,12 +12,11 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
 
 import torch
 
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import write_atomic
+from vlaprobe.files import Json, JsonObject, write_atomic
 from vlaprobe.policies.openvla.config import OpenVLAConfig, from_official, to_official
 from vlaprobe.policies.openvla.model import OpenVLA
 
@@ -25,14 +24,14 @@ FORMAT_VERSION = 1
 """Version of the ``"vlaprobe"`` block in config.json."""
 
 
-def _read_json(path: Path) -> Any:
+def _read_json(path: Path) -> Json:
     try:
         return json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
         raise VlaprobeError(f"cannot read {path} ({exc}); restore the checkpoint's copy") from None
 
 
-def _tiny_dims_overrides(path: Path) -> dict[str, dict[str, Any]]:
+def _tiny_dims_overrides(path: Path) -> dict[str, JsonObject]:
     dims = _read_json(path)
     try:
         out = {}
@@ -51,7 +50,7 @@ def _tiny_dims_overrides(path: Path) -> dict[str, dict[str, Any]]:
         ) from None
 
 
-def read_config(folder: Path) -> tuple[OpenVLAConfig, dict[str, Any], dict[str, Any]]:
+def read_config(folder: Path) -> tuple[OpenVLAConfig, JsonObject, JsonObject]:
     """(architecture, norm_stats, vlaprobe block or {}) of a checkpoint folder."""
     if not folder.is_dir():
         what = "is a file, not a folder" if folder.exists() else "not found"
@@ -171,8 +170,8 @@ def build_model(
 def save_checkpoint(
     folder: Path,
     model: OpenVLA,
-    norm_stats: dict[str, Any],
-    extra: dict[str, Any],
+    norm_stats: JsonObject,
+    extra: JsonObject,
     state: dict[str, torch.Tensor] | None = None,
 ) -> None:
     """Write ``config.json`` (official fields + "vlaprobe" block) and ``model.safetensors`` (float32): the

@@ -10,15 +10,15 @@ from __future__ import annotations
 import dataclasses
 import json
 from dataclasses import dataclass, field
-from typing import Any
 
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import JsonObject
 
 SUPPORTED_VISION_BACKBONE = "dinosiglip-vit-so-224px"
 """The only vision backbone id every released OpenVLA checkpoint uses (DINOv2 + SigLIP, 224 px)."""
 
 
-def _check_dims(cfg: Any, names: tuple[str, ...]) -> None:
+def _check_dims(cfg: object, names: tuple[str, ...]) -> None:
     """Model sizes read from a checkpoint's config.json must be positive integers (one-line error)."""
     for name in names:
         value = getattr(cfg, name)
@@ -184,12 +184,12 @@ class OpenVLAConfig:
     def num_hidden_states(self) -> int:
         return self.text.num_hidden_layers + 1
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> JsonObject:
         """JSON-ready (tuples as lists); :meth:`from_dict` inverts it."""
         return json.loads(json.dumps(dataclasses.asdict(self)))
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> OpenVLAConfig:
+    def from_dict(cls, d: JsonObject) -> OpenVLAConfig:
         d = dict(d)
         d["featurizer"] = ViTConfig(**d["featurizer"])
         d["fused_featurizer"] = ViTConfig(**d["fused_featurizer"])
@@ -217,9 +217,7 @@ _LLAMA_DEFAULTS = LlamaDims(
 )
 
 
-def from_official(
-    config: dict[str, Any], vision_overrides: dict[str, dict[str, Any]] | None = None
-) -> OpenVLAConfig:
+def from_official(config: JsonObject, vision_overrides: dict[str, JsonObject] | None = None) -> OpenVLAConfig:
     """Build the architecture from an official OpenVLA ``config.json`` (already parsed).
 
     ``text_config`` lists only what differs from transformers' LlamaConfig defaults, so missing fields take
@@ -263,7 +261,7 @@ def from_official(
     )
 
 
-def to_official(cfg: OpenVLAConfig, norm_stats: dict[str, Any]) -> dict[str, Any]:
+def to_official(cfg: OpenVLAConfig, norm_stats: JsonObject) -> JsonObject:
     """An official-format ``config.json`` for ``cfg`` (non-default Llama fields spelled out)."""
     text = dataclasses.asdict(cfg.text)
     return {

@@ -15,6 +15,7 @@ import torch
 
 from vlaprobe import devices
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import JsonObject
 from vlaprobe.policies.base import POOLINGS, PolicyStep, Pooling
 from vlaprobe.policies.openvla import actions, checkpoint, preprocessing
 from vlaprobe.policies.openvla.embedded import SEEDED_MODELS, embedded_folder
@@ -36,7 +37,7 @@ class OpenVLAPolicy:
         self,
         model: OpenVLA,
         tokenizer: Tokenizer,
-        norm_stats: dict[str, Any],
+        norm_stats: JsonObject,
         *,
         model_id: str,
         pooling: Pooling = "last_prompt",
@@ -198,7 +199,7 @@ class OpenVLAPolicy:
             ]
         return torch.stack(rows).float().cpu().numpy()
 
-    def describe(self) -> dict[str, Any]:
+    def describe(self) -> JsonObject:
         return {
             "model_id": self.model_id,
             "family": "openvla",

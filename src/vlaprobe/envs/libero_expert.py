@@ -333,6 +333,68 @@ class ScriptedExpert:
         self._last_pos = self._eef()[0]
         return action
 
+    def _approach(
+        self, lo: np.ndarray, hi: np.ndarray, pos: np.ndarray, rot: np.ndarray
+    ) -> np.ndarray | None:
+        """Above the grasp point, turned and settled: the action, or None once the phase changed."""
+        if self._side is None:
+            self._choose_side(lo, hi)
+        grasp = self._grasp_point(lo, hi)
+        if self._phase_steps == 0:  # travel height: above the rim and whatever stands on the way
+            clear = self._corridor_top(pos, grasp, 0.06) + CLEAR_MARGIN
+            self._anchor[2] = max(hi[2] + APPROACH_ABOVE_RIM, clear)
+        height = self._anchor[2]
+        above = np.array([grasp[0], grasp[1], height])
+        if pos[2] < height - 0.02 and np.linalg.norm(above[:2] - pos[:2]) > 0.03:
+            above[:2] = pos[:2]  # rise before moving sideways
+        turned = np.linalg.norm(_rotvec(_down_rotation(self._finger_axis) @ rot.T)) < YAW_TOL
+        settled = np.linalg.norm(pos - self._last_pos) < SETTLED_SPEED
+        above_grasp = np.linalg.norm(grasp[:2] - pos[:2]) < POS_TOL and abs(height - pos[2]) < 0.02
+        if above_grasp and turned and settled:
+            self._enter("descend")
+            return None
+        if self._phase_steps > PHASE_STEPS:
+            self._block_side()  # unreachable from here
+            return None
+        return self._action(above, OPEN)
+
+    def _descend(self, lo: np.ndarray, hi: np.ndarray, pos: np.ndarray) -> np.ndarray | None:
+        """Down to the grasp point (re-centring first): the action, or None once the phase changed."""
+        grasp = self._grasp_point(lo, hi)
+        if self._phase_steps == 0:
+            self._anchor = pos  # its height is the descent's set point, lowered step by step
+        if np.linalg.norm(grasp[:2] - pos[:2]) < DESCEND_XY_TOL:  # re-centre first: far out the arm lags
+            self._anchor[2] = max(grasp[2], self._anchor[2] - DESCEND_STEP)
+        height = pos[2] - grasp[2]
+        if height < 0.004:
+            self._enter("close")
+            return None
+        if (self._anchor[2] <= grasp[2] and self._stuck(height)) or self._phase_steps > PHASE_STEPS:
+            if height < 0.01:  # close enough: the pads still reach the wall
+                self._enter("close")
+            else:  # something is in the way of this side
+                self._block_side()
+            return None
+        return self._action(np.array([grasp[0], grasp[1], self._anchor[2]]), OPEN)
+
+    def _let_go(self, pos: np.ndarray) -> np.ndarray | None:
+        """Open the fingers, then rise: the action, or None once done."""
+        if self.phase == "release":
+            if self._phase_steps == 0:
+                self._anchor = pos
+            if self._phase_steps < OPEN_STEPS:
+                return self._action(self._anchor, OPEN)
+            self._anchor = pos + np.array([0.0, 0.0, RETREAT_HEIGHT])
+            self._enter("retreat")
+
+        if self.phase == "retreat":
+            error = float(np.linalg.norm(self._anchor - pos))
+            if error < POS_TOL or self._stuck(error):
+                self._enter("done")
+            else:
+                return self._action(self._anchor, OPEN)
+        return None
+
     def _decide(self, state: WorldState) -> np.ndarray:
         lo, hi = state.aabb_lo[self._pick], state.aabb_hi[self._pick]
         obj, place = state.pos[self._pick], state.pos[self._place]
@@ -348,43 +410,10 @@ class ScriptedExpert:
             self._side = None  # knocked off the target after the release: pick it up again
             self._enter("regrasp")
 
-        if self.phase == "approach":
-            if self._side is None:
-                self._choose_side(lo, hi)
-            grasp = self._grasp_point(lo, hi)
-            if self._phase_steps == 0:  # travel height: above the rim and whatever stands on the way
-                clear = self._corridor_top(pos, grasp, 0.06) + CLEAR_MARGIN
-                self._anchor[2] = max(hi[2] + APPROACH_ABOVE_RIM, clear)
-            height = self._anchor[2]
-            above = np.array([grasp[0], grasp[1], height])
-            if pos[2] < height - 0.02 and np.linalg.norm(above[:2] - pos[:2]) > 0.03:
-                above[:2] = pos[:2]  # rise before moving sideways
-            turned = np.linalg.norm(_rotvec(_down_rotation(self._finger_axis) @ rot.T)) < YAW_TOL
-            settled = np.linalg.norm(pos - self._last_pos) < SETTLED_SPEED
-            above_grasp = np.linalg.norm(grasp[:2] - pos[:2]) < POS_TOL and abs(height - pos[2]) < 0.02
-            if above_grasp and turned and settled:
-                self._enter("descend")
-            elif self._phase_steps > PHASE_STEPS:
-                self._block_side()  # unreachable from here
-            else:
-                return self._action(above, OPEN)
-
-        if self.phase == "descend":
-            grasp = self._grasp_point(lo, hi)
-            if self._phase_steps == 0:
-                self._anchor = pos  # its height is the descent's set point, lowered step by step
-            if np.linalg.norm(grasp[:2] - pos[:2]) < DESCEND_XY_TOL:  # re-centre first: far out the arm lags
-                self._anchor[2] = max(grasp[2], self._anchor[2] - DESCEND_STEP)
-            height = pos[2] - grasp[2]
-            if height < 0.004:
-                self._enter("close")
-            elif (self._anchor[2] <= grasp[2] and self._stuck(height)) or self._phase_steps > PHASE_STEPS:
-                if height < 0.01:  # close enough: the pads still reach the wall
-                    self._enter("close")
-                else:  # something is in the way of this side
-                    self._block_side()
-            else:
-                return self._action(np.array([grasp[0], grasp[1], self._anchor[2]]), OPEN)
+        if self.phase == "approach" and (action := self._approach(lo, hi, pos, rot)) is not None:
+            return action
+        if self.phase == "descend" and (action := self._descend(lo, hi, pos)) is not None:
+            return action
 
         if self.phase == "close":
             if self._phase_steps == 0:
@@ -426,20 +455,8 @@ class ScriptedExpert:
                 target[2] = pos[2] - gap
                 return self._action(target, CLOSE, speed=1.0 if gap > 0.05 else 0.5)
 
-        if self.phase == "release":
-            if self._phase_steps == 0:
-                self._anchor = pos
-            if self._phase_steps < OPEN_STEPS:
-                return self._action(self._anchor, OPEN)
-            self._anchor = pos + np.array([0.0, 0.0, RETREAT_HEIGHT])
-            self._enter("retreat")
-
-        if self.phase == "retreat":
-            error = float(np.linalg.norm(self._anchor - pos))
-            if error < POS_TOL or self._stuck(error):
-                self._enter("done")
-            else:
-                return self._action(self._anchor, OPEN)
+        if self.phase in ("release", "retreat") and (action := self._let_go(pos)) is not None:
+            return action
 
         if self.phase == "regrasp":
             if self._phase_steps == 0:
