@@ -23,7 +23,7 @@ from vlaprobe.envs.base import TaskEnv
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject
 from vlaprobe.policies.base import VLAPolicy
-from vlaprobe.rollout import EnvCache, EpisodeControl, EpisodeRunner, StepRecord, make_driver
+from vlaprobe.rollout import EnvCache, EpisodeControl, EpisodeRunner, StepRecord, SuccessTracker, make_driver
 from vlaprobe.rollout.perturb import KIND_CODE, Perturber, PerturbSpec
 from vlaprobe.rollout.runner import MakeDriver, default_threads
 from vlaprobe.symbols.vocabulary import atom
@@ -200,20 +200,16 @@ class _Outcome:
         self.perturber, self.control = perturber, control
         self.grasp_col = env.labeler.vocabulary.action_atoms.index(atom("grasped", env.goal.pick))
         self.codes: list[int] = []
-        self.success_step: int | None = None
-        self.pending, self.was_success, self.perturbed = "", False, False
+        self.tracker = SuccessTracker()
+        self.pending = ""
         self.rows, self.label_seconds = 0, 0.0
 
     def add(self, r: StepRecord) -> None:
         self.rows += 1
         self.label_seconds += r.timings.label_ms / 1000.0 if r.timings is not None else 0.0
-        # A success lost after a perturbation (knocked off) is not the episode's: the last onset counts.
-        if r.success and (self.success_step is None or (self.perturbed and not self.was_success)):
-            self.success_step = r.t
-        self.was_success = r.success
+        self.tracker.add(r)  # the loop's own rule: a success lost after a perturbation is not the episode's
         move = KIND_CODE.get(self.pending, 0) if r.perturbation == "move" else 0
         self.codes.append(KIND_CODE["drop"] if r.perturbation == "drop" else move)
-        self.perturbed |= r.perturbed
         if self.perturber is not None and self.control is not None and r.world is not None:
             grasped = bool(r.action_atoms[self.grasp_col])
             self.pending = (
@@ -221,8 +217,12 @@ class _Outcome:
             )
 
     @property
+    def success_step(self) -> int | None:
+        return self.tracker.step
+
+    @property
     def success(self) -> bool:
-        return self.success_step is not None and (not self.perturbed or self.was_success)
+        return self.tracker.step is not None
 
 
 def _episode_attrs(env: TaskEnv, perturber: Perturber | None, seconds: float) -> EpisodeAttrs:

@@ -17,7 +17,7 @@ import numpy as np
 from vlaprobe.cognition.core import CognitionStep, Violation
 from vlaprobe.cognition.subgoals import Event, SubgoalState
 from vlaprobe.live import protocol as P
-from vlaprobe.rollout import StepRecord, StepTimings
+from vlaprobe.rollout import StepRecord, StepTimings, SuccessTracker
 from vlaprobe.symbols import Goal
 
 HEADS = ("object", "action")
@@ -131,8 +131,8 @@ class StepBuilder:
     goal_step_predicted: int | None = None
     goal_step_truth: int | None = None
     steps: int = 0
-    success_step: int | None = None
-    """First step at which the task's own success check held."""
+    success: SuccessTracker = field(default_factory=SuccessTracker)
+    """The episode's success, by the loop's own rule (:class:`~vlaprobe.rollout.SuccessTracker`)."""
 
     def __post_init__(self) -> None:
         self._cog: EpisodeCognition | None = None
@@ -197,12 +197,11 @@ class StepBuilder:
             if int(v.since) == t:
                 self._violations[str(v.rule)] += 1
         self.steps = t + 1
-        if rec.success and self.success_step is None:
-            self.success_step = t
+        self.success.add(rec)
         msg = P.Step(
             episode_id=self.episode_id,
             t=t,
-            status=status_line(t, self.success_step, bool(rec.terminal) or t == self.spec.max_steps - 1),
+            status=status_line(t, self.success.step, bool(rec.terminal) or t == self.spec.max_steps - 1),
             step=t,
             predicted=P.Prediction(
                 **{
@@ -258,7 +257,7 @@ class StepBuilder:
         agree, total = self._agree
         return P.EpisodeEnd(
             episode_id=self.episode_id,
-            success=self.success_step is not None,
+            success=self.success.step is not None,
             steps=self.steps,
             stopped=stopped,
             summary=P.EpisodeSummary(
@@ -266,6 +265,6 @@ class StepBuilder:
                 goal_step_predicted=self.goal_step_predicted,
                 goal_step_truth=self.goal_step_truth,
                 agreement=round(agree / total, 4) if total else 1.0,
-                success_step=self.success_step,
+                success_step=self.success.step,
             ),
         )

@@ -7,7 +7,7 @@ run an episode: seeding, the driver, the loop; :func:`paced` replays stored reco
 """
 
 from vlaprobe.rollout.drivers import Driver, DriverName, ExpertDriver, PolicyDriver, make_driver
-from vlaprobe.rollout.loop import EpisodeControl, StepRecord, StepTimings, run_episode
+from vlaprobe.rollout.loop import EpisodeControl, StepRecord, StepTimings, SuccessTracker, run_episode
 from vlaprobe.rollout.runner import EnvCache, EpisodeRunner, paced, seed_everything
 
 __all__ = [
@@ -20,6 +20,7 @@ __all__ = [
     "PolicyDriver",
     "StepRecord",
     "StepTimings",
+    "SuccessTracker",
     "make_driver",
     "paced",
     "run_episode",

@@ -84,6 +84,36 @@ class StepRecord:
     """Where this step's time went; None from a store."""
 
 
+@dataclass
+class SuccessTracker:
+    """The episode's success, one rule for the loop, the collection worker and the live server.
+
+    ``step`` is the onset of the success that counts: the first observation where the task's own check holds;
+    once the episode has been perturbed (a drop or a move), a success that is lost again (an object knocked
+    off its target) no longer counts, and a new onset does. Feed it every observation in order: a move is
+    applied before its observation is judged, a drop after (it changes the action that follows).
+    """
+
+    step: int | None = None
+    """Onset of the success that counts; None while there is none."""
+    perturbed: bool = False
+    """The episode has been perturbed."""
+
+    def observe(self, t: int, success: bool) -> None:
+        if success and self.step is None:
+            self.step = t
+        elif not success and self.perturbed:
+            self.step = None
+
+    def add(self, record: StepRecord) -> None:
+        """Follow a recorded episode (live or stored) row by row."""
+        if record.perturbation == "move":
+            self.perturbed = True
+        self.observe(record.t, record.success)
+        if record.perturbation == "drop":
+            self.perturbed = True
+
+
 class EpisodeControl:
     """Stop, pause or perturb a running episode from another thread; the loop checks it between steps."""
 
@@ -222,20 +252,16 @@ def run_episode(
     env_ms = _ms(start)
     if obs.image is None:
         raise VlaprobeError("the simulator renders no image; the model needs it (drop --env.no-render)")
-    success_row: int | None = None
-    perturbed_any = False
+    success = SuccessTracker()
     for t in range(max_steps + 1):
         move = control.take_move() if control is not None else None
         if move is not None:
             obs = env.place_object(*move)
-            perturbed_any = True
-        if obs.success and success_row is None:
-            success_row = t
-        elif not obs.success and perturbed_any:
-            success_row = None
-        reached = success_row is not None and t >= success_row + post_success_steps
+            success.perturbed = True
+        success.observe(t, obs.success)
+        reached = success.step is not None and t >= success.step + post_success_steps
         terminal = reached or t == max_steps
-        if terminal and success_row is None:
+        if terminal and success.step is None:
             break
         t0 = time.perf_counter()
         world = env.world_state()
@@ -251,7 +277,7 @@ def run_episode(
             if control is not None and control.take_drop():
                 action = action.copy()
                 action[6] = GRIPPER_OPEN
-                perturbation, perturbed_any = "drop", True
+                perturbation, success.perturbed = "drop", True
         t3 = time.perf_counter()
         timings = StepTimings(
             env_ms=env_ms,
