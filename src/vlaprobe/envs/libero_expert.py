@@ -30,89 +30,49 @@ and under a held object's weight).
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from vlaprobe.envs.libero import LiberoTaskEnv
+from vlaprobe.envs.libero_grasp import (
+    APPROACH_ABOVE_RIM,
+    BLOCKED_ANGLE,
+    CLEAR_MARGIN,
+    CLEARANCE_CAP,
+    CLOSE,
+    CLOSE_STEPS,
+    DEPTH_COST,
+    DESCEND_STEP,
+    DESCEND_XY_TOL,
+    GAIN_D,
+    GAIN_I,
+    GRASP_DEPTHS,
+    GRIP_INSET,
+    INTEGRAL_MAX,
+    INTEGRATE_WITHIN,
+    LOST_DISTANCE,
+    MIN_OPENING,
+    OFF_TARGET,
+    OPEN,
+    OPEN_STEPS,
+    PHASE_STEPS,
+    POS_SCALE,
+    POS_TOL,
+    REACH_COST,
+    RELEASE_GAP,
+    REPLAN_DISTANCE,
+    RETREAT_HEIGHT,
+    ROT_SCALE,
+    SETTLED_SPEED,
+    SIDES,
+    STALL_STEPS,
+    SUPPORT_SLACK,
+    TURN_COST,
+    YAW_TOL,
+    _box_distance,
+    _clip_below,
+    _down_rotation,
+    _rotvec,
+)
 from vlaprobe.symbols.world import WorldState
-
-POS_SCALE = 0.05  # metres of goal offset per unit of action[:3] (OSC_POSE output_max)
-ROT_SCALE = 0.5  # radians of goal rotation per unit of action[3:6]
-OPEN, CLOSE = -1.0, 1.0
-
-# Grasp geometry (the LIBERO bowls: ~10.7 cm across, 5 cm tall, thin walls; Panda fingers open 8 cm).
-GRASP_DEPTHS = (0.025, 0.02, 0.015)  # grip point below the rim top, preferred first: the pads pinch the upper
-# wall; shallower grasps keep the hand (whose underside is 2.6 cm above the grip point) over a drawer's walls
-GRIP_INSET = 0.015  # grip point inside the rim radius, so the outer finger reaches less far out
-APPROACH_ABOVE_RIM = 0.07  # pre-grasp height of the grip point above the rim top
-SUPPORT_SLACK = 0.003  # obstacles are cut this far above the object's bottom when choosing a grasp side
-SIDES = 24  # candidate grasp sides around the rim
-CLEARANCE_CAP = 0.01  # clearances beyond this count as equally free (metres; the unit of the scores below)
-TURN_COST = 0.001  # score per radian of yaw turn
-REACH_COST = 0.05  # score per metre of horizontal distance from the robot's base
-DEPTH_COST = 0.2  # score per metre of grasp depth given up
-BLOCKED_ANGLE = np.deg2rad(40)  # after a blocked descent, sides this close to it are avoided
-# Motion.
-GAIN_D = 1.0  # damping gain on the grip point's velocity: the arm lags its goal, so braking avoids overshoot
-GAIN_I = 0.05  # integral gain (action units per step per unit error)
-INTEGRAL_MAX = 0.6  # bound of the integral term (action units)
-INTEGRATE_WITHIN = 0.5  # integrate an axis's error only when below this (action units, i.e. 2.5 cm)
-CLEAR_MARGIN = 0.03  # vertical margin over obstacles while moving sideways
-RELEASE_GAP = 0.015  # object bottom above the place target's top when opening
-RETREAT_HEIGHT = 0.10  # how far to rise after releasing
-CLOSE_STEPS = 12  # steps with the gripper commanded closed before moving
-OPEN_STEPS = 8  # steps with the gripper commanded open before moving away
-POS_TOL = 0.008  # waypoint reached (metres)
-SETTLED_SPEED = 0.003  # metres per step below which the gripper counts as stopped
-DESCEND_XY_TOL = 0.005  # horizontal error that pauses a descent
-DESCEND_STEP = 0.008  # descent speed (metres per step)
-YAW_TOL = 0.06  # orientation reached (radians)
-STALL_STEPS = 8  # steps without 1 mm of progress that end a move (something blocks it)
-PHASE_STEPS = 80  # steps after which an approach or descent counts as failed
-MIN_OPENING = 0.001  # finger opening (metres) below which the fingers hold nothing
-LOST_DISTANCE = 0.02  # grip point this far outside the object's box: the grasp is lost
-REPLAN_DISTANCE = 0.03  # the object moved this far (horizontally) since its grasp was planned: plan again
-OFF_TARGET = 0.06  # a released object this far (horizontally) from the target's origin is not on it
-
-
-def _rotvec(rot: np.ndarray) -> np.ndarray:
-    """Rotation vector (axis x angle) of a rotation matrix."""
-    return Rotation.from_matrix(rot).as_rotvec()
-
-
-def _box_distance(points: np.ndarray, centre: np.ndarray, rot: np.ndarray, half: np.ndarray) -> np.ndarray:
-    """(P, B) distances from points (P, 3) to oriented boxes (B centres, B rotations, B half sizes)."""
-    # Coordinates in each box's frame, local[p, b] = rot[b].T @ (points[p] - centre[b]), as one matrix product.
-    local = (points @ rot.transpose(1, 0, 2).reshape(3, -1)).reshape(len(points), -1, 3)
-    local -= np.einsum("bj,bji->bi", centre, rot)[None]
-    outside = np.maximum(np.abs(local) - half[None], 0.0)
-    return np.sqrt(np.einsum("pbi,pbi->pb", outside, outside))
-
-
-def _clip_below(
-    centre: np.ndarray, rot: np.ndarray, half: np.ndarray, z: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cut upright boxes (one local axis vertical) at height ``z``, keeping what lies above; boxes wholly below
-    go. What the object stands on then no longer counts against a grasp side: the fingertips stay above it."""
-    axis = np.argmax(np.abs(rot[:, 2, :]), axis=1)
-    rows = np.arange(len(axis))
-    upright = np.abs(rot[rows, 2, axis]) > 0.99
-    up = rot[rows, :, axis] * np.sign(rot[rows, 2, axis])[:, None]  # the vertical local axis, pointing up
-    h = half[rows, axis]
-    bottom = np.maximum(centre[:, 2] - h, z)
-    top = centre[:, 2] + h
-    new_h = np.where(upright, 0.5 * (top - bottom), h)
-    shift = np.where(upright, (bottom + top) / 2 - centre[:, 2], 0.0)
-    centre = centre + shift[:, None] * up / np.where(upright, up[:, 2], 1.0)[:, None]
-    half = half.copy()
-    half[rows, axis] = new_h
-    keep = ~upright | (top > z)
-    return centre[keep], rot[keep], half[keep]
-
-
-def _down_rotation(finger_axis: np.ndarray) -> np.ndarray:
-    """Grip-site frame pointing straight down with the fingers opening along ``finger_axis`` (its x axis)."""
-    z = np.array([0.0, 0.0, -1.0])
-    return np.stack([finger_axis, np.cross(z, finger_axis), z], axis=1)
 
 
 class ScriptedExpert:
