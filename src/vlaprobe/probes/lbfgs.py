@@ -159,10 +159,14 @@ class _State:
             for s, y, r in self.hist
         ]
         return _State(
-            *(t.index_select(1, keep) for t in (self.p,)),
-            self.z.index_select(2, keep),
-            *(t.index_select(1, keep) for t in (self.f, self.g, self.gamma, self.active, self.iterations)),
-            hist,
+            p=self.p.index_select(1, keep),
+            z=self.z.index_select(2, keep),
+            f=self.f.index_select(1, keep),
+            g=self.g.index_select(1, keep),
+            gamma=self.gamma.index_select(1, keep),
+            active=self.active.index_select(1, keep),
+            iterations=self.iterations.index_select(1, keep),
+            hist=hist,
         )
 
 
@@ -185,7 +189,7 @@ def _solve_chunk(prob: _Problem, p: torch.Tensor, tol: float, max_iter: int, his
     """Run L-BFGS on one layer chunk from ``p``; returns (p, iterations, loss, grad max, converged).
 
     Every tenth iteration, when under 3/4 of the columns still run on some layer, the stopped ones leave the
-    working set (the columns' problems are independent, so this changes no column's path).
+    working set (the columns' problems are independent: each follows the same path, up to float round-off).
     """
     z = prob.logits(p)
     f = prob.data_loss(z) + prob.penalty(p)
