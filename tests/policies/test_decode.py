@@ -32,7 +32,7 @@ def _llama(dtype: torch.dtype, heads: int, kv_heads: int) -> LlamaForCausalLM:
 
 
 def _both(model: LlamaForCausalLM, record: bool) -> tuple[list, list]:
-    """(ours, transformers'): per step, (logits (1, V), states (L+1, H) or None), fed the same tokens."""
+    """(ours, transformers'): per step, (logits (1, V), states (1, L+1, H) or None), fed the same tokens."""
     prompt = torch.randint(0, 300, (1, 40), generator=torch.Generator().manual_seed(1))
     with torch.inference_mode():
         out = model.model(input_ids=prompt, use_cache=True)
@@ -46,7 +46,7 @@ def _both(model: LlamaForCausalLM, record: bool) -> tuple[list, list]:
                 input_ids=token[:, None], past_key_values=ref_cache, use_cache=True, output_hidden_states=True
             )
             ref_cache = ref.past_key_values
-            states = torch.stack([h[0, -1] for h in ref.hidden_states])
+            states = torch.stack([h[:, -1] for h in ref.hidden_states], dim=1)
             theirs.append((model.lm_head(ref.last_hidden_state[:, -1]), states))
             token = theirs[-1][0].argmax(-1)
     return ours, theirs
@@ -64,7 +64,7 @@ def test_matches_transformers_cached_decoding(dtype, heads, kv_heads, atol):
     model = _llama(dtype, heads, kv_heads)
     ours, theirs = _both(model, record=True)
     for (logits, states), (ref_logits, ref_states) in zip(ours, theirs, strict=True):
-        assert logits.dtype == dtype and states.shape == (5, 64)
+        assert logits.dtype == dtype and states.shape == (1, 5, 64)
         torch.testing.assert_close(logits, ref_logits, atol=atol, rtol=0 if atol == 0 else 1e-5)
         torch.testing.assert_close(states, ref_states, atol=atol, rtol=0 if atol == 0 else 1e-5)
 
@@ -82,3 +82,29 @@ def test_rejects_projection_biases():
         out = model.model(input_ids=torch.tensor([[1, 2, 3]]), use_cache=True)
         with pytest.raises(ValueError, match="biases"):
             CachedDecoder(model, out.past_key_values, 3, STEPS, record=False)
+
+
+def test_a_batch_decodes_each_sequence_as_alone():
+    """B prompts of one length decoded together give each prompt's own logits and states."""
+    model = _llama(torch.float32, 4, 2)
+    prompts = torch.randint(0, 300, (3, 40), generator=torch.Generator().manual_seed(2))
+    with torch.inference_mode():
+
+        def run(ids: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tensor]]:
+            out = model.model(input_ids=ids, use_cache=True)
+            decoder = CachedDecoder(model, out.past_key_values, ids.shape[1], STEPS, record=True)
+            token, steps = model.lm_head(out.last_hidden_state[:, -1]).argmax(-1), []
+            for _ in range(STEPS):
+                logits, states = decoder.step(token)
+                steps.append((logits, states))
+                token = logits.argmax(-1)
+            return steps
+
+        batch = run(prompts)
+        for row in range(3):
+            for (logits, states), (one_logits, one_states) in zip(
+                batch, run(prompts[row : row + 1]), strict=True
+            ):
+                torch.testing.assert_close(logits[row : row + 1], one_logits, atol=1e-5, rtol=1e-5)
+                torch.testing.assert_close(states[row : row + 1], one_states, atol=1e-5, rtol=1e-5)
+    assert batch[0][1].shape == (3, 5, 64)

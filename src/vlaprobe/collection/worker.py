@@ -1,7 +1,8 @@
 """One collection worker: a model and a simulator in one process, running one episode at a time.
 
 The worker runs the one step loop (:func:`vlaprobe.rollout.run_episode`) and buffers its records into the
-per-step arrays of the store, so that the image, hidden states, labels, proprioception and both actions of a
+per-step arrays of the store (under the scripted expert the model observes the buffered images after the
+episode, in batches: :class:`vlaprobe.rollout.DeferredObserver`), so that the image, hidden states, labels, proprioception and both actions of a
 row all belong to the same timestep. The episode is handed back whole; the parent process writes it.
 """
 
@@ -22,8 +23,16 @@ from vlaprobe.envs import make_env
 from vlaprobe.envs.base import TaskEnv
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject
-from vlaprobe.policies.base import VLAPolicy
-from vlaprobe.rollout import EnvCache, EpisodeControl, EpisodeRunner, StepRecord, SuccessTracker, make_driver
+from vlaprobe.policies.base import BatchObserver, VLAPolicy
+from vlaprobe.rollout import (
+    DeferredObserver,
+    EnvCache,
+    EpisodeControl,
+    EpisodeRunner,
+    StepRecord,
+    SuccessTracker,
+    make_driver,
+)
 from vlaprobe.rollout.perturb import KIND_CODE, Perturber, PerturbSpec
 from vlaprobe.rollout.runner import MakeDriver, default_threads
 from vlaprobe.symbols.vocabulary import atom
@@ -108,7 +117,13 @@ class Worker:
         torch.set_num_threads(cfg.threads or default_threads(cfg.workers))
         self.policy = make_policy(cfg.policy)
         envs = EnvCache(lambda task: make_env(task, cfg.env), on_new=self._check_vocabulary)
-        self.runner = EpisodeRunner(self.policy, envs, make_driver)
+        # The expert does not read the model: it observes each episode afterwards, in batches.
+        self._deferred = (
+            DeferredObserver(self.policy)
+            if cfg.driver == "expert" and isinstance(self.policy, BatchObserver)
+            else None
+        )
+        self.runner = EpisodeRunner(self._deferred or self.policy, envs, make_driver)
         self._atoms: tuple[tuple[str, ...], tuple[str, ...]] = ((), ())
         self._first_task = -1
 
@@ -168,10 +183,14 @@ class Worker:
             control=control,
         )
         start = time.perf_counter()
-        rows, track = StepRows(), _Outcome(env, perturber, control)
+        rows, track, done = StepRows(), _Outcome(env, perturber, control), []
         for r in records:
+            track.add(r)  # perturbations come due while the episode runs
+            done.append(r)
+        if self._deferred is not None:
+            done = self._deferred.fill(done, env.instruction)
+        for r in done:
             rows.add(r)
-            track.add(r)
         seconds = time.perf_counter() - start
         info = EpisodeInfo(
             key=unit.key,

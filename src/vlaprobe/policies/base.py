@@ -64,3 +64,18 @@ class VLAPolicy(Protocol):
     def describe(self) -> JsonObject:
         """JSON-ready metadata: model id, config, dims, pooling, dtype, device."""
         ...
+
+
+@runtime_checkable
+class BatchObserver(Protocol):
+    """A policy that can also take its steps on many images at once, after the fact: the preprocessing of
+    one raw render, then :meth:`steps` on the preprocessed images (what the scripted expert's collections use,
+    whose actions do not depend on the model: ``vlaprobe.rollout.DeferredObserver``)."""
+
+    def model_image(self, image: np.ndarray) -> np.ndarray:
+        """The raw agentview render → the image the model sees."""
+        ...
+
+    def steps(self, model_images: np.ndarray, instruction: str) -> list[PolicyStep]:
+        """One :class:`PolicyStep` per preprocessed image, as ``step`` would give it (up to rounding)."""
+        ...

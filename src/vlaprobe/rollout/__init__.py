@@ -3,14 +3,17 @@
 ``run_episode(env, policy, driver, init=..., max_steps=...)`` yields a :class:`StepRecord` per observation;
 collection buffers them into the store, a live server streams them (and pauses, stops or perturbs the
 episode through an :class:`EpisodeControl`). :class:`EpisodeRunner` (with its :class:`EnvCache`) is how both
-run an episode: seeding, the driver, the loop; :func:`paced` replays stored records under the same control.
+run an episode: seeding, the driver, the loop; :func:`paced` replays stored records under the same control;
+:class:`DeferredObserver` lets the model observe an expert-driven episode after it ran, in batches.
 """
 
+from vlaprobe.rollout.deferred import DeferredObserver
 from vlaprobe.rollout.drivers import Driver, DriverName, ExpertDriver, PolicyDriver, make_driver
 from vlaprobe.rollout.loop import EpisodeControl, StepRecord, StepTimings, SuccessTracker, run_episode
 from vlaprobe.rollout.runner import EnvCache, EpisodeRunner, paced, seed_everything
 
 __all__ = [
+    "DeferredObserver",
     "Driver",
     "DriverName",
     "EnvCache",

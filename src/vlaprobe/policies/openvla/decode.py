@@ -41,7 +41,7 @@ def _rotate_half_matrix(d: int, like: torch.Tensor) -> torch.Tensor:
 
 
 def _cache_layer(cache: Any, i: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Layer ``i``'s (keys, values), each (1, kv_heads, T, d), from a transformers ``DynamicCache``."""
+    """Layer ``i``'s (keys, values), each (B, kv_heads, T, d), from a transformers ``DynamicCache``."""
     layers = getattr(cache, "layers", None)
     if layers is not None:  # transformers >= 4.56
         return layers[i].keys, layers[i].values
@@ -67,10 +67,11 @@ def _layer_weights(layer: Any) -> tuple[Any, ...]:
 
 
 class CachedDecoder:
-    """Greedy single-token steps continuing a prompt pass: ``step(token)`` → (logits (1, V), states or None).
+    """Greedy single-token steps continuing a prompt pass: ``step(tokens)`` → (logits (B, V), states or None).
 
-    ``states`` (when ``record``) is every layer's state at the fed position, (L + 1, H), in transformers'
+    ``states`` (when ``record``) is every layer's state at the fed position, (B, L + 1, H), in transformers'
     ``output_hidden_states`` convention: the embedding, each layer's output, the last one after the final norm.
+    A batch of B sequences shares one prompt length (the prompt pass ran on B images with the same prompt).
     """
 
     def __init__(
@@ -101,22 +102,22 @@ class CachedDecoder:
         self.cos, self.sin = cos[0], sin[0]
         self.rotate_half = _rotate_half_matrix(self.head_dim, embed)
 
-    def step(self, token: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """Feed ``token`` (shape (1,)) at the next position."""
+    def step(self, tokens: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Feed ``tokens`` (shape (B,), one per sequence) at the next position."""
         model = self.lm.model
-        p = self.position
+        p, b = self.position, tokens.shape[0]
         cos, sin = self.cos[p - self.start], self.sin[p - self.start]
-        x = model.embed_tokens(token)[None]  # (1, 1, H)
-        states = [x[0, 0]] if self.record else None
+        x = model.embed_tokens(tokens)[:, None]  # (B, 1, H)
+        states = [x[:, 0]] if self.record else None
         d, r = self.head_dim, self.rotate_half
         last = len(self.weights) - 1
         for i, (n1, eps1, wq, wk, wv, wo, n2, eps2, wg, wu, wd, act) in enumerate(self.weights):
             h = _rms_norm(x, n1, eps1)
-            q = F.linear(h, wq).view(1, 1, -1, d).transpose(1, 2)
+            q = F.linear(h, wq).view(b, 1, -1, d).transpose(1, 2)
             q = q * cos + (q @ r) * sin
-            k = F.linear(h, wk).view(1, 1, -1, d).transpose(1, 2)
+            k = F.linear(h, wk).view(b, 1, -1, d).transpose(1, 2)
             torch.add(k * cos, (k @ r) * sin, out=self.keys[i][:, :, p : p + 1])
-            self.values[i][:, :, p : p + 1] = F.linear(h, wv).view(1, 1, -1, d).transpose(1, 2)
+            self.values[i][:, :, p : p + 1] = F.linear(h, wv).view(b, 1, -1, d).transpose(1, 2)
             a = F.scaled_dot_product_attention(
                 q,
                 self.keys[i][:, :, : p + 1],
@@ -124,13 +125,13 @@ class CachedDecoder:
                 scale=self.scale,
                 enable_gqa=self.gqa,
             )
-            x = x + F.linear(a.transpose(1, 2).reshape(1, 1, -1), wo)
+            x = x + F.linear(a.transpose(1, 2).reshape(b, 1, -1), wo)
             h = _rms_norm(x, n2, eps2)
             x = x + F.linear(act(F.linear(h, wg)) * F.linear(h, wu), wd)
             if states is not None and i < last:
-                states.append(x[0, 0])
+                states.append(x[:, 0])
         x = _rms_norm(x, model.norm.weight, model.norm.variance_epsilon)
         self.position += 1
         if states is not None:
-            states.append(x[0, 0])
-        return self.lm.lm_head(x[:, -1]), (torch.stack(states) if states is not None else None)
+            states.append(x[:, 0])
+        return self.lm.lm_head(x[:, -1]), (torch.stack(states, dim=1) if states is not None else None)

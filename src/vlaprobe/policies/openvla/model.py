@@ -107,12 +107,25 @@ class OpenVLA(nn.Module):
 
         ``input_ids`` (1, L) must start with <s> and end with the empty token 29871.
         """
-        lm = self.language_model
+        return self.predict_batch(pixel_values, input_ids, pooling)[0]
+
+    @torch.inference_mode()
+    def predict_batch(
+        self, pixel_values: torch.Tensor, input_ids: torch.Tensor, pooling: Pooling | None = None
+    ) -> list[Prediction]:
+        """:meth:`predict` for B images (B, 6, 224, 224) under one prompt ``input_ids`` (1, L), in one prompt
+        pass and one batched decode; B = 1 runs exactly the operations of a single prediction."""
+        lm, b = self.language_model, pixel_values.shape[0]
         capture = pooling is not None
         out = lm.model(
-            inputs_embeds=self.embed(pixel_values, input_ids), use_cache=True, output_hidden_states=capture
+            inputs_embeds=self.embed(pixel_values, input_ids.expand(b, -1)),
+            use_cache=True,
+            output_hidden_states=capture,
         )
-        hidden = _pool(out.hidden_states, pooling, self.config.num_patches) if capture else None
+        hidden = None
+        if capture:
+            states, n = out.hidden_states, self.config.num_patches
+            hidden = torch.stack([_pool(tuple(h[i : i + 1] for h in states), pooling, n) for i in range(b)])
         per_step = [hidden] if pooling == "action_tokens" else None
         logits = [lm.lm_head(out.last_hidden_state[:, -1])]
         tokens = [logits[-1].argmax(-1)]
@@ -120,27 +133,28 @@ class OpenVLA(nn.Module):
         if cache is None:
             cache = out.past_key_values
         decoder = CachedDecoder(
-            lm,
-            cache,
-            out.last_hidden_state.shape[1],
-            ACTION_DIM - 1,
-            record=per_step is not None,
+            lm, cache, out.last_hidden_state.shape[1], ACTION_DIM - 1, record=per_step is not None
         )
         for _ in range(ACTION_DIM - 1):
-            step_logits, states = decoder.step(tokens[-1])
+            step_logits, step_states = decoder.step(tokens[-1])
             if per_step is not None:
-                per_step.append(states)
+                per_step.append(step_states)
             logits.append(step_logits)
             tokens.append(step_logits.argmax(-1))
-        generated = torch.cat(tokens)
+        generated = torch.stack(tokens, dim=1)  # (B, 7)
         if per_step is not None:
-            hidden = torch.stack(per_step, dim=1)
-        return Prediction(
-            action_token_ids=_official_action_ids(input_ids[0], generated, self.config.text.eos_token_id),
-            generated_ids=generated,
-            step_logits=torch.cat(logits),
-            hidden=hidden,
-        )
+            hidden = torch.stack(per_step, dim=2)  # (B, L, 7, H)
+        step_logits = torch.stack(logits, dim=1)  # (B, 7, V)
+        eos = self.config.text.eos_token_id
+        return [
+            Prediction(
+                action_token_ids=_official_action_ids(input_ids[0], generated[i], eos),
+                generated_ids=generated[i],
+                step_logits=step_logits[i],
+                hidden=hidden[i] if hidden is not None else None,
+            )
+            for i in range(b)
+        ]
 
 
 def _pool(hidden_states: tuple[torch.Tensor, ...], pooling: Pooling, num_patches: int) -> torch.Tensor:
