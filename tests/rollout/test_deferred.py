@@ -35,7 +35,9 @@ class BatchFakePolicy(FakePolicy):
 
 
 def _workers(policy: type) -> partial[Worker]:
-    return partial(Worker, make_env=FakeEnv, make_policy=policy, make_driver=fake_driver, list_tasks=fake_tasks)
+    return partial(
+        Worker, make_env=FakeEnv, make_policy=policy, make_driver=fake_driver, list_tasks=fake_tasks
+    )
 
 
 @pytest.mark.parametrize("perturb", ["", "drop=1,displace=1"])

@@ -186,7 +186,7 @@ class LiberoTaskEnv:
         render = observable._sensor  # robosuite 1.4's Observable: set_sensor() would render once to validate
         blank = np.zeros(observable._data_shape, dtype=np.uint8)
 
-        def no_render(_cache: dict[str, Any]) -> np.ndarray:
+        def no_render(_cache: object) -> np.ndarray:
             return blank
 
         no_render.__modality__ = render.__modality__  # type: ignore[attr-defined]
