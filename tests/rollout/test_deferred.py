@@ -72,20 +72,24 @@ def _record(t: int, image: np.ndarray) -> StepRecord:
     )  # fmt: skip
 
 
-def test_the_tiny_model_in_batches_matches_its_single_steps() -> None:
-    """35 renders (a batch of 32 and one of 3) through the shipped observer: the same tokens and actions, hidden
-    states within float32 rounding of the single steps."""
-    policy = make_policy(PolicyConfig(model="tiny-libero", device="cpu"))
+@pytest.mark.parametrize(
+    ("pooling", "renders"), [("last_prompt", 35), ("action_tokens", 4), ("mean_text", 4)]
+)
+def test_the_tiny_model_in_batches_matches_its_single_steps(pooling: str, renders: int) -> None:
+    """Renders through the shipped observer in batches (35: one of 32 and one of 3): the same tokens and actions,
+    hidden states within float32 rounding of the single steps, for every kind of pooling."""
+    policy = make_policy(PolicyConfig(model="tiny-libero", device="cpu", pooling=pooling))  # type: ignore[arg-type]
     assert isinstance(policy, BatchObserver)
     deferred = DeferredObserver(policy)
     instruction = "pick up the black bowl next to the plate and place it on the plate"
-    renders = np.random.default_rng(0).integers(0, 256, (35, 128, 128, 3), dtype=np.uint8)
-    records = [_record(t, deferred.step(r, instruction).model_image) for t, r in enumerate(renders)]
+    images = np.random.default_rng(0).integers(0, 256, (renders, 128, 128, 3), dtype=np.uint8)
+    records = [_record(t, deferred.step(r, instruction).model_image) for t, r in enumerate(images)]
     filled = deferred.fill(records, instruction)
-    for render, rec in zip(renders, filled, strict=True):
+    for render, rec in zip(images, filled, strict=True):
         single = policy.step(render, instruction)
         np.testing.assert_array_equal(rec.model_image, single.model_image)
         np.testing.assert_array_equal(rec.action_tokens, single.action_tokens)
         np.testing.assert_array_equal(rec.predicted_action, single.action)
+        assert rec.hidden.shape == single.hidden.shape
         np.testing.assert_allclose(rec.hidden, single.hidden, atol=1e-4, rtol=1e-5)
     assert not np.allclose(filled[0].hidden, filled[1].hidden)  # each row its own image's states
