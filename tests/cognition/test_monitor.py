@@ -11,7 +11,14 @@ import torch
 from tests.cognition.scenes import APPROACH, BOWL2, CARRY, COOKIES, PLACED, PLATE, VOCAB, arrays
 
 from vlaprobe.cli import main as cli_main
-from vlaprobe.cognition.monitor import MONITOR_FILE, EpisodeFigures, goal_detection, monitor, report_section
+from vlaprobe.cognition.monitor import (
+    MONITOR_FILE,
+    EpisodeFigures,
+    gain_interval,
+    goal_detection,
+    monitor,
+    report_section,
+)
 from vlaprobe.collection.store import EpisodeInfo
 from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.configs.monitor import MonitorConfig
@@ -109,6 +116,13 @@ def test_monitor_compares_truth_and_probes(run: tuple[Path, Path]) -> None:
     assert [e.goal_step_probes for e in result.per_episode] == [GOAL_STEP, GOAL_STEP, None]
     assert p.subgoal_accuracy == pytest.approx((3 * len(STEPS) - (len(STEPS) - GOAL_STEP)) / (3 * len(STEPS)))
     assert 0.95 < p.belief_agreement < 1
+    # the bar: truth's step-0 state kept for the whole episode (the same labels in every episode here)
+    y = labels()
+    probed = sorted(set(np.flatnonzero(y.any(0) & ~y.all(0)).tolist()) | {VOCAB.object_atoms.index(FLICKER)})
+    assert p.belief_agreement_step0 == pytest.approx((y[:, probed] == y[0, probed]).mean())
+    assert p.belief_agreement_step0 < 0.9
+    low, high = p.belief_agreement_gain_95
+    assert 0 < low <= p.belief_agreement - p.belief_agreement_step0 <= high
     assert p.flips_per_step == p.flips_per_step_debounced > 0
     written = json.loads((probes / MONITOR_FILE).read_text())
     assert (
@@ -140,7 +154,7 @@ def test_cli_prints_the_figures_as_json(
     assert set(out["truth"]) == {"violations_per_100_steps", "violations"}
     assert set(out["probes"]) == {
         "violations_per_100_steps", "violations", "goal_detection", "subgoal_accuracy", "belief_agreement",
-        "flips_per_step", "flips_per_step_debounced",
+        "belief_agreement_step0", "belief_agreement_gain_95", "flips_per_step", "flips_per_step_debounced",
     }  # fmt: skip
     assert set(out["probes"]["goal_detection"]) == {
         "precision", "recall", "mean_delay_steps", "false_alarms_per_100_steps", "episodes", "failed_episodes",
@@ -169,6 +183,8 @@ def test_the_report_shows_the_monitor_section(run: tuple[Path, Path], tmp_path: 
     html = page[start : page.index("<h2 id=", start + 1)]
     assert html.count("<table>") == 3 and all(rule in html for rule in result.truth.violations)
     assert f"({result.steps} steps)" in html and "held-out test" in html
+    bar, (low, high) = result.probes.belief_agreement_step0, result.probes.belief_agreement_gain_95
+    assert f"step-0 state (the bar)</td><td>{bar:.3f}</td>" in html and f"[{low:+.3f}, {high:+.3f}]" in html
 
 
 def test_bad_input_is_a_one_line_error(
@@ -210,3 +226,14 @@ def test_extra_stores_join_the_figures(run: tuple[Path, Path], tmp_path: Path) -
     assert [e.key for e in result.per_episode][3:] == [
         f"{store.name}/{e.key}" for e in result.per_episode[:3]
     ]
+
+
+def test_the_gain_interval_over_episodes_has_known_answers() -> None:
+    cells = np.array([100, 200, 50])
+    # every episode 0.9 against a bar of 0.8: every resample gains exactly 0.1
+    low, high = gain_interval(0.9 * cells, 0.8 * cells, cells)
+    assert low == pytest.approx(0.1) and high == pytest.approx(0.1)
+    # one episode gains, one loses: the interval spans both and is ordered
+    low, high = gain_interval(np.array([100, 0]), np.array([0, 100]), np.array([100, 100]))
+    assert low == pytest.approx(-1.0) and high == pytest.approx(1.0)
+    assert gain_interval(np.array([]), np.array([]), np.array([], dtype=int)) is None

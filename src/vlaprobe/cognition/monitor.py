@@ -71,6 +71,11 @@ class ProbeFigures(ViolationFigures):
     """Share of steps whose active subgoal (predictions) equals the one from truth."""
     belief_agreement: float = math.nan
     """Share of (step, probed atom) pairs whose belief (predictions) equals the belief from truth."""
+    belief_agreement_step0: float = math.nan
+    """The same for a predictor that keeps each episode's step-0 beliefs from truth: the bar for agreement
+    (on expert episodes most atoms never change, so agreement alone says little)."""
+    belief_agreement_gain_95: tuple[float, float] | None = None
+    """95% bootstrap interval over episodes (1000 resamples, seed 0) of agreement minus the step-0 bar."""
     flips_per_step: float = math.nan
     """Changes of probed atoms between consecutive steps in the raw predictions, per step."""
     flips_per_step_debounced: float = math.nan
@@ -254,6 +259,19 @@ def goal_detection(episodes: list[EpisodeFigures]) -> GoalDetection:
     )
 
 
+def gain_interval(
+    agree: np.ndarray, baseline: np.ndarray, cells: np.ndarray, resamples: int = 1000, seed: int = 0
+) -> tuple[float, float] | None:
+    """95% percentile-bootstrap interval over episodes of (sum agree - sum baseline) / sum cells, from
+    per-episode counts; None without episodes."""
+    if len(cells) == 0 or cells.sum() == 0:
+        return None
+    idx = np.random.default_rng(seed).integers(0, len(cells), (resamples, len(cells)))
+    gain = (agree[idx].sum(1) - baseline[idx].sum(1)) / np.maximum(cells[idx].sum(1), 1)
+    low, high = np.percentile(gain, [2.5, 97.5])
+    return float(low), float(high)
+
+
 def _figures(pairs: list[_Pair], mask: np.ndarray, rules: list[str]) -> tuple[ViolationFigures, ProbeFigures]:
     """The truth run's and the probe run's figures over all episodes."""
     steps = sum(len(p.truth.steps) for p in pairs)
@@ -261,7 +279,10 @@ def _figures(pairs: list[_Pair], mask: np.ndarray, rules: list[str]) -> tuple[Vi
     truth_v: Counter[str] = sum((p.truth.new_violations() for p in pairs), Counter())
     probe_v: Counter[str] = sum((p.probes.new_violations() for p in pairs), Counter())
     agree_sub = sum(int((p.truth.active() == p.probes.active()).sum()) for p in pairs)
-    agree = sum(int((p.truth.beliefs[:, mask] == p.probes.beliefs[:, mask]).sum()) for p in pairs)
+    agree_ep = np.array([int((p.truth.beliefs[:, mask] == p.probes.beliefs[:, mask]).sum()) for p in pairs])
+    still_ep = np.array([int((p.truth.beliefs[:, mask] == p.truth.beliefs[:1, mask]).sum()) for p in pairs])
+    cells_ep = np.array([len(p.truth.steps) * int(mask.sum()) for p in pairs])
+    agree = int(agree_ep.sum())
     raw_flips = sum(int((p.raw[1:] != p.raw[:-1]).sum()) for p in pairs)
     belief_flips = sum(int((p.probes.beliefs[1:, mask] != p.probes.beliefs[:-1, mask]).sum()) for p in pairs)
     flip_steps = max(steps - len(pairs), 1)
@@ -272,6 +293,8 @@ def _figures(pairs: list[_Pair], mask: np.ndarray, rules: list[str]) -> tuple[Vi
         goal_detection=goal_detection([_episode_figures(p) for p in pairs]),
         subgoal_accuracy=agree_sub / max(steps, 1),
         belief_agreement=agree / max(steps * int(mask.sum()), 1),
+        belief_agreement_step0=int(still_ep.sum()) / max(steps * int(mask.sum()), 1),
+        belief_agreement_gain_95=gain_interval(agree_ep, still_ep, cells_ep),
         flips_per_step=raw_flips / flip_steps,
         flips_per_step_debounced=belief_flips / flip_steps,
     )
@@ -370,8 +393,11 @@ def main(cfg: MonitorConfig) -> int:
         f"recall {g.recall}, false alarms per 100 steps {g.false_alarms_per_100_steps}, "
         f"mean delay {g.mean_delay_steps} steps"
     )
+    gain = p.belief_agreement_gain_95
+    span = "" if gain is None else f", gain 95% [{gain[0]:+.3f}, {gain[1]:+.3f}]"
     print(
-        f"subgoal accuracy {p.subgoal_accuracy:.3f}, belief agreement {p.belief_agreement:.3f}, flips per step "
+        f"subgoal accuracy {p.subgoal_accuracy:.3f}, belief agreement {p.belief_agreement:.3f} "
+        f"(keeping the step-0 state: {p.belief_agreement_step0:.3f}{span}), flips per step "
         f"{p.flips_per_step:.2f} raw / {p.flips_per_step_debounced:.2f} debounced"
     )
     return 0
