@@ -171,22 +171,13 @@ class OpenVLAPolicy:
         return self.model.predict(self.pixel_values(model_image), input_ids, pooling=pooling)
 
     def step(self, image: np.ndarray, instruction: str) -> PolicyStep:
-        model_image = self.model_image(image)
-        pred = self.predict(model_image, self.prompt_ids(instruction), self.pooling)
-        tokens = pred.action_token_ids.cpu().numpy().astype(np.int64)
-        assert pred.hidden is not None
-        return PolicyStep(
-            action=actions.libero_gripper(self.decode(tokens)),
-            hidden=pred.hidden.float().cpu().numpy(),
-            model_image=model_image,
-            action_tokens=tokens,
-        )
+        return self.steps(self.model_image(image)[None], instruction)[0]
 
     def steps(self, model_images: np.ndarray, instruction: str) -> list[PolicyStep]:
-        """:meth:`step` on many preprocessed images (B, 224, 224, 3) uint8 under one instruction, in batches of
+        """:meth:`step` on preprocessed images (B, 224, 224, 3) uint8 under one instruction, in batches of
         :data:`BATCH` (one prompt pass and one decode per batch): for episodes whose driver does not read the
-        model, observed after they ran (``vlaprobe.rollout.DeferredObserver``). A batch rounds differently from
-        single steps (measured on tiny-libero: hidden states within ~1e-6 of :meth:`step`'s)."""
+        model, observed after they ran (``vlaprobe.rollout.DeferredObserver``). One image runs exactly the
+        operations of a single step; a batch rounds differently (tiny-libero: hidden states within ~1e-6)."""
         ids, out = self.prompt_ids(instruction), []
         for start in range(0, len(model_images), BATCH):
             chunk = model_images[start : start + BATCH]
