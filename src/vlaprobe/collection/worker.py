@@ -1,9 +1,10 @@
 """One collection worker: a model and a simulator in one process, running one episode at a time.
 
 The worker runs the one step loop (:func:`vlaprobe.rollout.run_episode`) and buffers its records into the
-per-step arrays of the store (under the scripted expert the model observes the buffered images after the
-episode, in batches: :class:`vlaprobe.rollout.DeferredObserver`), so that the image, hidden states, labels, proprioception and both actions of a
-row all belong to the same timestep. The episode is handed back whole; the parent process writes it.
+per-step arrays of the store, so that the image, hidden states, labels, proprioception and both actions of a
+row all belong to the same timestep (under the scripted expert the model observes the buffered images after
+the episode, in batches: :class:`vlaprobe.rollout.DeferredObserver`). The episode is handed back whole; the
+parent process writes it.
 """
 
 from __future__ import annotations

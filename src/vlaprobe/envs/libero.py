@@ -165,8 +165,8 @@ class LiberoTaskEnv:
 
     def _settle(self, raw: dict[str, Any]) -> Observation:
         self._gripper_command = -1.0
-        # Only the last settle step's render is seen: the camera is off before it (the physics does not depend
-        # on rendering; the same images, byte for byte, ~0.1 s less per settle step).
+        # Only the last settle step's render is seen: the steps before it get a blank image instead (the physics
+        # does not depend on rendering; the same images, byte for byte, ~0.1 s less per settle step).
         for i in range(self.cfg.settle_steps):
             with self._camera_off(self.cfg.render and i < self.cfg.settle_steps - 1):
                 raw, _, _, _ = self._env.step(NOOP_ACTION)

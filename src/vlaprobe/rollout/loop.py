@@ -36,7 +36,8 @@ class StepTimings:
     label_ms: float
     """World-state snapshot and every detector."""
     model_ms: float
-    """The observer model's step (preprocessing, forward pass with capture, action decoding)."""
+    """The observer model's step (preprocessing, forward pass with capture, action decoding); only the
+    preprocessing when the model observes the episode afterwards (:class:`vlaprobe.rollout.DeferredObserver`)."""
     driver_ms: float
     """The driver's action choice (the scripted expert's planning; ~0 when the model drives)."""
     total_ms: float
