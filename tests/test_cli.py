@@ -63,6 +63,25 @@ def test_run_config_round_trips_through_json() -> None:
     assert config_from_dict(RunConfig, data) == cfg
 
 
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize(
+    "path, command",
+    [(p, "finetune") for p in sorted((ROOT / "recipes").glob("*.yaml"))]
+    + [(p, "run") for p in sorted((ROOT / "experiments").glob("*.yaml"))],
+    ids=lambda v: v.name if isinstance(v, Path) else v,
+)
+def test_shipped_config_files_parse(path: Path, command: str) -> None:
+    """Every recipe (vlaprobe finetune) and experiment (vlaprobe run) in the repository loads as its command's
+    config: a renamed or retyped field shows here, not in a user's 60-minute run."""
+    import yaml
+
+    data = yaml.safe_load(path.read_text())
+    cfg = config_from_dict(COMMANDS[command].config_class(), data, source=str(path))
+    assert {f.name for f in dataclasses.fields(cfg)} >= set(data)
+
+
 def test_config_file_unknown_field_is_refused() -> None:
     with pytest.raises(VlaprobeError, match="unknown field"):
         config_from_dict(RunConfig, {"out": "x", "colect": {}})

@@ -45,7 +45,7 @@ class RunConfig:
     report: ReportConfig = field(default_factory=ReportConfig)
     """Report settings."""
     control_model: str = "tiny-libero-init"
-    """The control observer: this model (a name as for --collect.model, or a checkpoint folder) is shown the
+    """The control observer: this model (a name as for --model, or a checkpoint folder) is shown the
     images of the same episodes (``<out>/control/activations``, a batched pass, no second simulation), its
     probes are trained and evaluated with the same split and resamples as the observer's (the observer
     control of ``vlaprobe train``), and the report compares the two layer by layer. Default: the trained
