@@ -73,13 +73,16 @@ ROOT = Path(__file__).resolve().parents[1]
     ids=lambda v: v.name if isinstance(v, Path) else v,
 )
 def test_shipped_config_files_parse(path: Path, command: str) -> None:
-    """Every recipe (vlaprobe finetune) and experiment (vlaprobe run) in the repository loads as its command's
-    config: a renamed or retyped field shows here, not in a user's 60-minute run."""
+    """Every recipe (vlaprobe finetune) and experiment (vlaprobe run) in the repository loads through
+    ``--config`` as its command's config: a renamed or retyped field shows here, not in a user's 60-minute run."""
     import yaml
 
-    data = yaml.safe_load(path.read_text())
-    cfg = config_from_dict(COMMANDS[command].config_class(), data, source=str(path))
-    assert {f.name for f in dataclasses.fields(cfg)} >= set(data)
+    from vlaprobe.cli import _load_config_file
+
+    cls = COMMANDS[command].config_class()
+    cfg = _load_config_file(path, cls)
+    assert isinstance(cfg, cls)
+    assert {f.name for f in dataclasses.fields(cfg)} >= set(yaml.safe_load(path.read_text()))
 
 
 def test_config_file_unknown_field_is_refused() -> None:
