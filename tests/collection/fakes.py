@@ -18,7 +18,7 @@ import numpy as np
 
 from vlaprobe.collection.worker import Worker
 from vlaprobe.envs.base import Observation
-from vlaprobe.rollout import PolicyDriver
+from vlaprobe.rollout import DaggerDriver, PolicyDriver
 from vlaprobe.symbols import Articulation, Goal, Labeler, Scene, WorldState
 
 NUM_TASKS, NUM_INITS, LAYERS, HIDDEN, IMAGE = 3, 12, 4, 8, 16
@@ -133,20 +133,38 @@ class FakePolicy:
         return {"model_id": "fake", "seed": self.seed, "device": "cpu", "pooling": self.pooling}
 
 
-class FakeExpert:
-    """The "expert" driver; the "policy" driver executes the fake model's own action."""
+class FakeScriptedExpert:
+    """The scripted expert's interface on the fake simulator: close the gripper after step 1."""
 
-    def __init__(self, env: FakeEnv, seed: int) -> None:
+    def __init__(self, env: FakeEnv) -> None:
         self.env = env
 
     def reset(self) -> None:
         pass
 
-    def act(self, obs: Observation, prediction: Any) -> np.ndarray:
+    def act(self) -> np.ndarray:
         return np.array([0.1, 0.0, -0.1, 0.0, 0.0, 0.0, 1.0 if self.env.t > 1 else -1.0])
 
 
-def fake_driver(name: str, env: Any, policy: Any, seed: int) -> Any:
+class FakeExpert:
+    """The "expert" driver; the "policy" driver executes the fake model's own action."""
+
+    def __init__(self, env: FakeEnv, seed: int) -> None:
+        self.expert = FakeScriptedExpert(env)
+
+    def reset(self) -> None:
+        pass
+
+    def act(self, obs: Observation, prediction: Any) -> np.ndarray:
+        return self.expert.act()
+
+    def expert_label(self) -> np.ndarray | None:
+        return None
+
+
+def fake_driver(name: str, env: Any, policy: Any, seed: int, beta: float = 0.0) -> Any:
+    if name == "dagger":
+        return DaggerDriver(FakeScriptedExpert(env), seed, beta)
     return FakeExpert(env, seed) if name == "expert" else PolicyDriver()
 
 

@@ -226,3 +226,31 @@ def test_post_success_steps_record_rows_after_success_and_the_success_step(tmp_p
         collect(dataclasses.replace(cfg, post_success_steps=0), make_fake_worker)
     with pytest.raises(VlaprobeError, match="post-success-steps"):
         collect(dataclasses.replace(cfg, out=tmp_path / "other", post_success_steps=-1), make_fake_worker)
+
+
+def test_dagger_store_keeps_the_experts_labels_and_its_beta(tmp_path: Path) -> None:
+    cfg = config(tmp_path / "store", tasks=(1,), episodes_per_task=3, keep_failed=True, driver="dagger")
+    collect(dataclasses.replace(cfg, dagger_beta=0.5), make_fake_worker)
+    store = ActivationStore.open(cfg.out)
+    assert store.meta["driver"] == "dagger" and store.meta["dagger_beta"] == 0.5
+    by_model = by_expert = 0
+    for e in store.episodes():
+        arrays = store.episode(e.key)
+        expert, action = np.asarray(arrays["expert_action"]), np.asarray(arrays["action"])
+        predicted = np.asarray(arrays["predicted_action"])
+        assert expert.shape == (e.length, 7) and expert.dtype == np.float32
+        acted = np.isfinite(action).all(axis=1)
+        assert (np.isfinite(expert).all(axis=1) == acted).all()  # NaN only on the terminal row
+        by_expert += int(np.all(action[acted] == expert[acted], axis=1).sum())
+        by_model += int(np.all(action[acted] == predicted[acted], axis=1).sum())
+    assert by_expert > 0 and by_model > 0  # beta 0.5: both acted
+    with pytest.raises(VlaprobeError, match=r"dagger_beta is 0\.5 in the store but 0\.2"):
+        collect(dataclasses.replace(cfg, dagger_beta=0.2), make_fake_worker)
+    with pytest.raises(VlaprobeError, match="--dagger-beta applies to --driver dagger only"):
+        collect(config(tmp_path / "other", dagger_beta=0.5), make_fake_worker)
+    with pytest.raises(VlaprobeError, match=r"--dagger-beta must be a number in \[0, 1\]"):
+        collect(dataclasses.replace(cfg, dagger_beta=2.0), make_fake_worker)
+    expert_store = config(tmp_path / "expert", tasks=(1,), episodes_per_task=1)
+    collect(expert_store, make_fake_worker)
+    plain = ActivationStore.open(expert_store.out)
+    assert "expert_action" not in plain.episode(plain.episodes()[0].key)

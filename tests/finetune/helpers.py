@@ -90,3 +90,19 @@ def write_demo_store(
                 del arrays["image"]
             w.write_episode(info, arrays, {"instruction": f"put the bowl number {task} on the plate"})
     return path
+
+
+def write_dagger_store(
+    path: Path, episodes: list[tuple[int, int, int, bool]], image_size: int = IMAGE
+) -> Path:
+    """A ``--driver dagger`` store of episodes (task, init, length, success): the executed action is the
+    model's (noise), the expert's label (``expert_action``) is the demonstration episode's action."""
+    meta = make_meta(num_hidden_states=2, hidden_size=4, driver="dagger", dagger_beta=0.0)
+    with StoreWriter.open(path, meta) as w:
+        for task, init, length, success in episodes:
+            info, arrays = demo_episode(task, init, length, image_size)
+            info = EpisodeInfo(info.key, task, init, 0, success, length, seed=7, driver="dagger")
+            arrays["expert_action"] = arrays["action"]
+            arrays["action"] = np.random.default_rng(init).normal(0, 1, (length, 7)).astype(np.float32)
+            w.write_episode(info, arrays, {"instruction": f"put the bowl number {task} on the plate"})
+    return path

@@ -94,6 +94,8 @@ def _run_meta(cfg: CollectConfig) -> JsonObject:
     extra: JsonObject = {"inits": cfg.env.inits} if cfg.env.inits != "fixed" else {}
     if cfg.perturb:
         extra["perturb"] = PerturbSpec.parse(cfg.perturb).text()
+    if cfg.driver == "dagger":
+        extra["dagger_beta"] = cfg.dagger_beta
     return {
         **extra,
         "driver": cfg.driver,

@@ -32,6 +32,8 @@ STEP_DTYPES: dict[str, type] = {
     "step": np.int32,
 }
 """The per-step arrays of an episode and their stored dtypes (besides ``world/*`` and ``perturbation``)."""
+OPTIONAL_STEP_ARRAYS = ("perturbation", "expert_action")
+"""Per-step arrays only some stores hold (see :class:`EpisodeSteps`)."""
 KIND_NAME = {code: kind for kind, code in KIND_CODE.items()}
 
 
@@ -62,6 +64,9 @@ class EpisodeSteps:
     perturbation: np.ndarray | None = None
     """int8 (T,): ``rollout.perturb.KIND_CODE`` of the perturbation that changed a row (0: none); only in
     stores collected with ``--perturb``."""
+    expert_action: np.ndarray | None = None
+    """float32 (T, 7): the scripted expert's action for each row, the label ``vlaprobe finetune`` learns
+    from (NaN on a terminal row); only in stores collected with ``--driver dagger``."""
 
     @property
     def length(self) -> int:
@@ -71,8 +76,9 @@ class EpisodeSteps:
         """The arrays by store name, as the writer takes them."""
         out = {name: getattr(self, name) for name in STEP_DTYPES}
         out.update(world_arrays(self.world))
-        if self.perturbation is not None:
-            out["perturbation"] = self.perturbation
+        for name in OPTIONAL_STEP_ARRAYS:
+            if (value := getattr(self, name)) is not None:
+                out[name] = value
         return out
 
     @classmethod
@@ -89,7 +95,7 @@ class EpisodeSteps:
         return cls(
             **{name: np.asarray(arrays[name]) for name in STEP_DTYPES},
             world=world_states(arrays),
-            perturbation=np.asarray(arrays["perturbation"]) if "perturbation" in arrays else None,
+            **{k: np.asarray(arrays[k]) if k in arrays else None for k in OPTIONAL_STEP_ARRAYS},
         )
 
 
@@ -99,11 +105,13 @@ class StepRows:
     def __init__(self) -> None:
         self._cols: dict[str, list[np.ndarray | int]] = {name: [] for name in STEP_DTYPES}
         self._world: list[WorldState] = []
+        self._expert: list[np.ndarray | None] = []
 
     def add(self, r: StepRecord) -> None:
         for name, values in self._cols.items():
             values.append(_value(r, name))
         self._world.append(_world(r))
+        self._expert.append(r.expert_action)
 
     def steps(self, codes: Sequence[int] | None = None) -> EpisodeSteps:
         """The columns of the rows added (``codes``: the perturbation code of each row, if any)."""
@@ -112,7 +120,12 @@ class StepRows:
         }
         cols["hidden"] = np.ascontiguousarray(np.moveaxis(cols["hidden"], 0, 1))  # (layers, T, ...)
         perturbation = None if codes is None else np.asarray(codes, dtype=np.int8)
-        return EpisodeSteps(**cols, world=self._world, perturbation=perturbation)
+        labelled = [a for a in self._expert if a is not None]
+        expert = None
+        if labelled:  # a row the expert did not label (a success at reset) has none: NaN like a terminal row
+            nan = np.full(7, np.nan)
+            expert = np.stack([nan if a is None else a for a in self._expert]).astype(np.float32)
+        return EpisodeSteps(**cols, world=self._world, perturbation=perturbation, expert_action=expert)
 
 
 def _value(r: StepRecord, name: str) -> np.ndarray | int:
@@ -255,6 +268,7 @@ def stored_records(arrays: Mapping[str, np.ndarray], success_step: int | None) -
         k: np.asarray(arrays[k]) if k in arrays else None for k in ("proprio", "action_tokens", "step")
     }
     codes = np.asarray(arrays["perturbation"]) if "perturbation" in arrays else None
+    expert = np.asarray(arrays["expert_action"]) if "expert_action" in arrays else None
     n = len(cols["image"])
     for t in range(n):
         kind = KIND_NAME.get(int(codes[t]), "") if codes is not None else ""
@@ -276,4 +290,5 @@ def stored_records(arrays: Mapping[str, np.ndarray], success_step: int | None) -
             perturbed=bool(kind),
             perturbation="drop" if kind == "drop" else ("move" if kind else ""),
             timings=None,
+            expert_action=expert[t] if expert is not None else None,
         )

@@ -182,6 +182,7 @@ class Worker:
             max_steps=self.cfg.env.max_steps,
             post_success_steps=self.cfg.post_success_steps,
             control=control,
+            beta=self.cfg.dagger_beta,
         )
         start = time.perf_counter()
         rows, track, done = StepRows(), _Outcome(env, perturber, control), []

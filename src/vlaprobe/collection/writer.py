@@ -46,6 +46,7 @@ COMPATIBLE_KEYS = (
     "hidden_size",
     "pooling",
     "driver",
+    "dagger_beta",
     "suite",
     "env",
     "seed",

@@ -187,6 +187,11 @@ def check_collect(cfg: CollectConfig, prefix: str = "") -> None:
     at_least(cfg.first_init, 0, f("first_init"))
     at_least(cfg.post_success_steps, 0, f("post_success_steps"))
     at_least(cfg.threads, 1, f("threads"), " (or leave it out for the default)")
+    _between(cfg.dagger_beta, 0.0, 1.0, f("dagger_beta"), closed=True)
+    if cfg.dagger_beta and cfg.driver != "dagger":
+        raise VlaprobeError(
+            f"{f('dagger_beta')} applies to --driver dagger only; drop it or add --driver dagger"
+        )
     if not (math.isfinite(cfg.ray_gpus_per_worker) and cfg.ray_gpus_per_worker >= 0):
         raise VlaprobeError(f"{f('ray_gpus_per_worker')} must be 0 or more, got {cfg.ray_gpus_per_worker}")
     check_env(cfg.env, prefix + "env.")

@@ -18,9 +18,14 @@ class CollectConfig:
 
     out: Path = Path("runs/default/activations")
     """Activation store folder. Created if missing; an existing store made with the same settings is resumed."""
-    driver: Literal["expert", "policy"] = "expert"
+    driver: Literal["expert", "policy", "dagger"] = "expert"
     """Who acts: the privileged scripted expert (the model only observes, its predicted action is recorded next
-    to the executed one) or the model itself (the paper's setting)."""
+    to the executed one), the model itself (the paper's setting), or "dagger": the model acts and the scripted
+    expert labels every row with its own action (``expert_action``, what `vlaprobe finetune` then learns from;
+    see --dagger-beta and docs/finetune.md)."""
+    dagger_beta: float = 0.0
+    """Under --driver dagger: the probability that a step executes the expert's action instead of the model's
+    (DAgger's beta; 0: the model always acts, the expert only labels)."""
     policy: Annotated[PolicyConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=PolicyConfig)
     """The model whose hidden states are recorded (--model tiny|FOLDER, --pooling, --device, ...). Its --seed
     also seeds every episode (with the task, init state and attempt)."""

@@ -17,7 +17,7 @@ class FinetuneConfig:
 
     stores: tuple[Path, ...] = ()
     """Collection stores (``vlaprobe collect --out``) whose episodes are the demonstrations: images, executed
-    actions, instructions."""
+    actions, instructions; in a ``--driver dagger`` store, the expert's labels instead of the executed actions."""
     out: Path = Path("runs/finetune")
     """Run folder: ``checkpoint/`` (a model folder ``--model`` and ``--policy.model`` load), ``metrics.jsonl``,
     ``finetune.json``. A folder holding a checkpoint of the same run is resumed."""
@@ -34,7 +34,8 @@ class FinetuneConfig:
     val_fraction: float = 0.1
     """Share of each task's episodes held out for validation (at least one per task with two or more)."""
     success_only: bool = True
-    """Train only on episodes whose task was completed (demonstrations of success)."""
+    """Train only on episodes whose task was completed (demonstrations of success). Not applied to
+    ``--driver dagger`` stores: their labels are the expert's, whether or not the model completed the task."""
     skip_post_success: bool = True
     """Drop the rows recorded after the goal was reached (``post_success_steps``): not part of the demonstration."""
     drop_noops: bool = True

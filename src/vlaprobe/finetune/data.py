@@ -2,7 +2,9 @@
 
 A row is one step of an expert episode: the image exactly as the model saw it (``image``), the executed
 action (``action``, LIBERO's convention) turned into OpenVLA's training target (gripper 1 open, 0 closed),
-and the episode's instruction. The statistics follow OpenVLA's ``dataset_statistics.json`` (q01/q99 of the
+and the episode's instruction. In a store collected with ``--driver dagger`` the target is the scripted
+expert's label (``expert_action``) instead: there the model acted, and the expert said what it should have
+done. The statistics follow OpenVLA's ``dataset_statistics.json`` (q01/q99 of the
 training split's actions; the gripper is left unnormalised by the mask).
 """
 
@@ -93,6 +95,12 @@ def keep_rows(
     return keep
 
 
+def target_array(arrays: StoredEpisode) -> str:
+    """The array an episode's training targets come from: the expert's labels where it has them (DAgger),
+    else the executed actions."""
+    return "expert_action" if "expert_action" in arrays else "action"
+
+
 def load_demonstrations(
     paths: tuple[Path, ...],
     image_size: int,
@@ -106,9 +114,11 @@ def load_demonstrations(
     refs: list[EpisodeRef] = []
     has_proprio = True
     for s_index, store in enumerate(stores):
-        infos = store.episodes(success_only=success_only)
+        # The expert's labels teach wherever the model went: a DAgger store's failed episodes count too.
+        only_success = success_only and store.meta.get("driver") != "dagger"
+        infos = store.episodes(success_only=only_success)
         if not infos:
-            what = "successful episodes" if success_only else "episodes"
+            what = "successful episodes" if only_success else "episodes"
             raise VlaprobeError(f"store {store.path} has no {what}; collect some or pass --no-success-only")
         for info in infos:
             arrays = store.episode(info.key)
@@ -123,7 +133,7 @@ def load_demonstrations(
                     f"store {store.path} holds images of shape {list(img.shape[1:])}, the model takes "
                     f"{image_size}x{image_size}x3; collect with a model of the same image size"
                 )
-            raw = np.asarray(arrays["action"], dtype=np.float64)
+            raw = np.asarray(arrays[target_array(arrays)], dtype=np.float64)
             keep = keep_rows(raw, info.success_step, skip_post_success, drop_noops)
             if not keep.any():
                 continue

@@ -8,11 +8,19 @@ run an episode: seeding, the driver, the loop; :func:`paced` replays stored reco
 """
 
 from vlaprobe.rollout.deferred import DeferredObserver
-from vlaprobe.rollout.drivers import Driver, DriverName, ExpertDriver, PolicyDriver, make_driver
+from vlaprobe.rollout.drivers import (
+    DaggerDriver,
+    Driver,
+    DriverName,
+    ExpertDriver,
+    PolicyDriver,
+    make_driver,
+)
 from vlaprobe.rollout.loop import EpisodeControl, StepRecord, StepTimings, SuccessTracker, run_episode
 from vlaprobe.rollout.runner import EnvCache, EpisodeRunner, paced, seed_everything
 
 __all__ = [
+    "DaggerDriver",
     "DeferredObserver",
     "Driver",
     "DriverName",

@@ -83,6 +83,9 @@ class StepRecord:
     """Which: "drop", "move", or "" (none)."""
     timings: StepTimings | None
     """Where this step's time went; None from a store."""
+    expert_action: np.ndarray | None = None
+    """(7,) the scripted expert's action for this observation where it labels states the policy visits
+    (``--driver dagger``; NaN on the terminal row); None under the other drivers."""
 
 
 @dataclass
@@ -201,6 +204,7 @@ def _record(
     terminal: bool,
     perturbation: str,
     timings: StepTimings,
+    expert_action: np.ndarray | None,
 ) -> StepRecord:
     return StepRecord(
         t=t,
@@ -220,6 +224,7 @@ def _record(
         perturbed=bool(perturbation),
         perturbation=perturbation,
         timings=timings,
+        expert_action=expert_action,
     )
 
 
@@ -271,10 +276,13 @@ def run_episode(
         out = policy.step(obs.image, env.instruction)
         t2 = time.perf_counter()
         perturbation = "move" if move is not None else ""
+        label: np.ndarray | None  # the expert's action where it labels a step another actor took (DAgger)
         if terminal:
             action = np.full(7, np.nan)
+            label = None if driver.expert_label() is None else np.full(7, np.nan)
         else:
             action = np.asarray(driver.act(obs, out), dtype=np.float64)
+            label = driver.expert_label()
             if control is not None and control.take_drop():
                 action = action.copy()
                 action[6] = GRIPPER_OPEN
@@ -288,7 +296,7 @@ def run_episode(
             total_ms=env_ms + (t3 - t0) * 1e3,
         )
         yield _record(
-            t, obs, out, world, (object_atoms, action_atoms), action, terminal, perturbation, timings
+            t, obs, out, world, (object_atoms, action_atoms), action, terminal, perturbation, timings, label
         )
         if terminal:
             return

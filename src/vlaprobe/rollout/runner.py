@@ -20,7 +20,8 @@ from vlaprobe.policies.base import VLAPolicy
 from vlaprobe.rollout.drivers import Driver, DriverName, make_driver
 from vlaprobe.rollout.loop import EpisodeControl, StepRecord, run_episode
 
-MakeDriver = Callable[[DriverName, TaskEnv, VLAPolicy, int], Driver]
+MakeDriver = Callable[[DriverName, TaskEnv, VLAPolicy, int, float], Driver]
+"""Builds a driver: (name, simulator, observed policy, episode seed, DAgger's beta)."""
 
 
 def seed_everything(seed: int) -> None:
@@ -80,10 +81,12 @@ class EpisodeRunner:
         max_steps: int,
         post_success_steps: int = 0,
         control: EpisodeControl | None = None,
+        beta: float = 0.0,
     ) -> Iterator[StepRecord]:
-        """Seed, build the driver and run one episode (see :func:`vlaprobe.rollout.run_episode`)."""
+        """Seed, build the driver and run one episode (see :func:`vlaprobe.rollout.run_episode`); ``beta`` is
+        the dagger driver's share of expert-executed steps."""
         seed_everything(seed)
-        chosen = self._make_driver(driver, env, self.policy, seed)
+        chosen = self._make_driver(driver, env, self.policy, seed, beta)
         yield from run_episode(
             env,
             self.policy,
