@@ -96,8 +96,7 @@ class DaggerDriver:
 
     def act(self, obs: Observation, prediction: PolicyStep) -> np.ndarray:
         self._label = np.asarray(self.expert.act(), dtype=np.float64)
-        expert_acts = self.beta > 0.0 and self._rng.random() < self.beta
-        return self._label if expert_acts else prediction.action
+        return self._label if self._rng.random() < self.beta else prediction.action
 
     def expert_label(self) -> np.ndarray | None:
         return self._label
