@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import torch
@@ -13,6 +15,7 @@ from vlaprobe.probes.metrics import (
     confusion_by_group,
     fixed_set,
     metrics_from_counts,
+    nan_percentiles,
     summarize,
 )
 
@@ -177,3 +180,18 @@ def test_interval_of_an_average_stays_centred_when_resamples_lose_rare_atoms() -
     assert abs(fixed.mean() - value) < 0.01 and abs(np.median(fixed) - value) < 0.01 and low < value < high
     assert changing.mean() - value > 0.02  # the bias this removes
     assert layer["defined"][0] < 2000 * 0.8  # resamples missing the rare episode are counted
+
+
+def test_nan_percentiles_are_numpys_to_the_last_bit() -> None:
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(200, 4, 9))
+    x[rng.random(x.shape) < 0.3] = np.nan
+    x[:, 0, 0] = np.nan  # a column without any defined value
+    x[1:, 1, 1] = np.nan  # one defined value
+    x[:, 2, 2] = 1.5  # constant
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # numpy warns on the all-NaN column
+        expected = np.nanpercentile(x, [2.5, 50, 97.5], axis=0)
+    for got, want in zip(nan_percentiles(x, (2.5, 50, 97.5)), expected, strict=True):
+        np.testing.assert_array_equal(got, want)
+    assert np.isnan(nan_percentiles(x, (2.5,))[0][0, 0])

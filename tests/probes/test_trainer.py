@@ -163,3 +163,29 @@ def test_cross_validation_picks_a_strong_penalty_for_noise_and_a_weak_one_for_si
     assert probes.c is not None and (probes.c[:, k:] == 0.001).all()
     with pytest.raises(ValueError, match="episodes"):
         fit_probes(data.hidden, targets, np.arange(data.num_steps), cfg, seed=0)
+
+
+def test_backtracking_columns_alone_give_the_same_probes(
+    planted: dict, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from vlaprobe.probes import lbfgs
+
+    data, train, y = planted["data"], planted["train"], planted["y"]
+    x = data.hidden[:2, train].float() * 5  # unstandardised, large features: step 1 often overshoots
+    x -= x.mean(1, keepdim=True)
+    targets = torch.as_tensor(y[train], dtype=torch.float32)
+    l2 = torch.full((2, y.shape[1]), 1e-2)
+    widths: list[int] = []
+    data_loss = lbfgs._Problem.data_loss
+
+    def counting(self: lbfgs._Problem, z: torch.Tensor) -> torch.Tensor:
+        widths.append(z.shape[-1])
+        return data_loss(self, z)
+
+    monkeypatch.setattr(lbfgs._Problem, "data_loss", counting)
+    *_, conv = lbfgs.fit_logistic(x, targets, l2, tol=1e-5, max_iter=500)
+    assert not conv.converged.any()  # so no column left the working set: every narrower pass was a halving
+    assert min(widths) < y.shape[1]  # some halvings went on with the pending columns only
+    for j in (0, y.shape[1] - 1):
+        *_, alone = lbfgs.fit_logistic(x, targets[:, j : j + 1], l2[:, j : j + 1], tol=1e-5, max_iter=500)
+        np.testing.assert_allclose(alone.loss[:, 0], conv.loss[:, j], rtol=1e-5)

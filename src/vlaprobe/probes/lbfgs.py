@@ -85,6 +85,13 @@ class _Problem:
     def penalty(self, p: torch.Tensor) -> torch.Tensor:
         return 0.5 * self.l2 * (p[:, :, :-1] ** 2).sum(-1)
 
+    def select(self, keep: torch.Tensor) -> _Problem:
+        """The same problem for the columns ``keep`` (an index tensor) only; the features are shared."""
+        weight = None if self.weight is None else self.weight.index_select(1, keep)
+        return _Problem(
+            self.x, self.y.index_select(1, keep), weight, self.inv_n[keep], self.l2.index_select(1, keep)
+        )
+
 
 def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return (a * b).sum(-1)
@@ -118,6 +125,8 @@ def _line_search(
     """Per-column Armijo backtracking from ``step``.
 
     Returns (accepted step, 0 where none was found; the objective there, ``f`` where none; logits dz).
+    The first trial covers every column; the later ones only the columns still pending (usually few), so
+    that a backtracking column does not cost a pass over every column's logits.
     """
     dz = prob.logits(d)
     pw, dw = p[:, :, :-1], d[:, :, :-1]
@@ -125,15 +134,22 @@ def _line_search(
     pending = gd < 0
     accepted = torch.zeros_like(step)
     f_new = f.clone()
-    for _ in range(40):
+    cols = torch.arange(step.shape[1], device=step.device)
+    sub, zs, dzs, f_ref = prob, z, dz, f
+    for trial_index in range(40):
         if not bool(pending.any()):
             break
-        trial = prob.data_loss(z + step[:, None] * dz) + 0.5 * prob.l2 * (
+        if trial_index == 1:  # from now on, the pending columns only
+            cols = torch.nonzero(pending.any(0)).flatten()
+            sub, zs, dzs = prob.select(cols), z.index_select(2, cols), dz.index_select(2, cols)
+            ww, wd, dd, f_ref, gd = ww[:, cols], wd[:, cols], dd[:, cols], f[:, cols], gd[:, cols]
+            step, pending = step[:, cols], pending[:, cols]
+        trial = sub.data_loss(zs + step[:, None] * dzs) + 0.5 * sub.l2 * (
             ww + 2 * step * wd + step * step * dd
         )
-        ok = pending & (trial <= f + 1e-4 * step * gd)
-        accepted = torch.where(ok, step, accepted)
-        f_new = torch.where(ok, trial, f_new)
+        ok = pending & (trial <= f_ref + 1e-4 * step * gd)
+        accepted[:, cols] = torch.where(ok, step, accepted[:, cols])
+        f_new[:, cols] = torch.where(ok, trial, f_new[:, cols])
         pending &= ~ok
         step = torch.where(pending, step * 0.5, step)
     return accepted, f_new, dz
@@ -178,11 +194,7 @@ def _compact(
     out.p[:, cols], out.f[:, cols], out.g[:, cols] = st.p, st.f, st.g
     out.iterations[:, cols], out.active[:, cols] = st.iterations, st.active
     keep = torch.nonzero(st.active.any(0)).flatten()
-    weight = None if prob.weight is None else prob.weight.index_select(1, keep)
-    small = _Problem(
-        prob.x, prob.y.index_select(1, keep), weight, prob.inv_n[keep], prob.l2.index_select(1, keep)
-    )
-    return small, st.select(keep), cols[keep]
+    return prob.select(keep), st.select(keep), cols[keep]
 
 
 def _solve_chunk(prob: _Problem, p: torch.Tensor, tol: float, max_iter: int, history: int):

@@ -15,8 +15,6 @@ resamples it was defined.
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import torch
 
@@ -156,10 +154,29 @@ def _interval(resampled: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         nan = np.full(resampled.shape[1:], np.nan)
         return nan, nan
     ok = (~np.isnan(resampled)).sum(0) >= 2
-    with np.errstate(invalid="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices: handled by ``ok``
-        low, high = np.nanpercentile(resampled, [2.5, 97.5], axis=0)
+    low, high = nan_percentiles(resampled, (2.5, 97.5))
     return np.where(ok, low, np.nan), np.where(ok, high, np.nan)
+
+
+def nan_percentiles(x: np.ndarray, qs: tuple[float, ...]) -> list[np.ndarray]:
+    """``np.nanpercentile(x, q, axis=0)`` for each q (its default linear method, the same numbers), NaN
+    where a column has no defined value. One sort of the whole array instead of numpy's per-column loop
+    for arrays with NaNs (seconds on the layers x atoms of a probe evaluation)."""
+    ordered = np.sort(x, axis=0)  # NaNs sort last
+    n = (~np.isnan(x)).sum(0)
+    out = []
+    for q in qs:
+        virtual = (n - 1) * (q / 100)
+        below = np.clip(np.floor(virtual), 0, np.maximum(n - 1, 0)).astype(np.int64)
+        above = np.minimum(below + 1, np.maximum(n - 1, 0))
+        t = virtual - below
+        a = np.take_along_axis(ordered, below[None], 0)[0]
+        b = np.take_along_axis(ordered, above[None], 0)[0]
+        with np.errstate(invalid="ignore"):
+            diff = b - a
+            value = np.where(t >= 0.5, b - diff * (1 - t), a + diff * t)  # numpy's _lerp, the same rounding
+        out.append(np.where(n > 0, value, np.nan))
+    return out
 
 
 def _nanmean(x: np.ndarray, axis: int) -> np.ndarray:
