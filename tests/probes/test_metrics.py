@@ -16,15 +16,18 @@ from vlaprobe.probes.metrics import (
     fixed_set,
     metrics_from_counts,
     nan_percentiles,
+    resampled_average_precision,
     summarize,
 )
 
 
 def ap(scores: list[float], truth: list[int], weights: list[float] | None = None) -> float:
+    """AP of one column; with ``weights``, of one resample counting row i weights[i] times."""
     s = torch.tensor(scores, dtype=torch.float64)[:, None]
-    y = torch.tensor(truth, dtype=torch.bool)[:, None]
-    w = None if weights is None else torch.tensor([weights], dtype=torch.float64)
-    return float(average_precision(s, y, w).reshape(-1)[0])
+    if weights is None:
+        return float(average_precision(s, torch.tensor(truth, dtype=torch.bool)[:, None])[0])
+    rows = np.arange(len(scores))  # every row its own group
+    return float(resampled_average_precision(s, np.array(truth, bool), rows, np.array([weights]))[0, 0])
 
 
 def test_average_precision_by_hand() -> None:
@@ -195,3 +198,21 @@ def test_nan_percentiles_are_numpys_to_the_last_bit() -> None:
     for got, want in zip(nan_percentiles(x, (2.5, 50, 97.5)), expected, strict=True):
         np.testing.assert_array_equal(got, want)
     assert np.isnan(nan_percentiles(x, (2.5,))[0][0, 0])
+
+
+def test_resampled_average_precision_draws_whole_groups_at_every_column() -> None:
+    rng = np.random.default_rng(1)
+    rows, groups = 40, 5
+    group = rng.integers(0, groups, rows)
+    truth = (rng.random(rows) < 0.4) & (group != 0)  # group 0 has no positive row
+    scores = torch.as_tensor(rng.integers(0, 6, (rows, 3)).astype(float))  # ties in every column
+    draws = bootstrap_weights(groups, 7, seed=0)
+    draws[0] = [5, 0, 0, 0, 0]  # group 0 alone: no positive drawn, undefined
+    got = resampled_average_precision(scores, truth, group, draws, budget=rows * groups)  # a column per chunk
+    assert np.isnan(got[0]).all()
+    for r in range(1, len(draws)):
+        repeated = np.repeat(np.arange(rows), draws[r][group].astype(int))
+        expected = average_precision(
+            scores[repeated], torch.as_tensor(truth[repeated])[:, None].expand(-1, 3)
+        )
+        np.testing.assert_allclose(got[r], expected.numpy(), rtol=1e-6)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 METRICS = ("accuracy", "balanced_accuracy", "f1", "auprc")
 """Every metric reported, in display order."""
@@ -62,40 +63,82 @@ def metrics_from_counts(counts: np.ndarray) -> dict[str, np.ndarray]:
     return {"accuracy": accuracy, "balanced_accuracy": balanced, "f1": f1}
 
 
-def average_precision(
-    scores: torch.Tensor, truth: torch.Tensor, weights: torch.Tensor | None = None
-) -> torch.Tensor:
+def _sorted_blocks(scores: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Each column's descending order (stable) and, per sorted row, the last row of its block of tied scores."""
+    n = scores.shape[0]
+    sorted_scores, order = torch.sort(scores, dim=0, descending=True, stable=True)
+    last = torch.ones_like(sorted_scores, dtype=torch.bool)
+    last[:-1] = sorted_scores[1:] != sorted_scores[:-1]
+    positions = torch.arange(n).unsqueeze(1).expand_as(last)
+    block_end = torch.where(last, positions, torch.full_like(positions, n - 1))
+    return order, torch.flip(torch.cummin(torch.flip(block_end, [0]), dim=0).values, [0])
+
+
+def average_precision(scores: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
     """Average precision (area under the step-wise precision-recall curve) of each column.
 
-    ``scores`` float (rows, columns), ``truth`` bool (rows, columns), optional ``weights`` (resamples, rows)
-    of row multiplicities. Returns (columns,) or (resamples, columns); NaN where a column has no positives.
+    ``scores`` float (rows, columns), ``truth`` bool (rows, columns). Returns (columns,); NaN where a column
+    has no positives.
 
     AP = sum over thresholds t of (recall(t) - recall(t_prev)) * precision(t), thresholds being the distinct
     scores: rows with equal scores enter together, so ties are neither rewarded nor punished by their order.
     Equivalently, every positive row contributes precision at the end of its block of tied scores.
     """
     scores = torch.as_tensor(scores, dtype=torch.float64)
-    truth = torch.as_tensor(truth).bool()
-    n = scores.shape[0]
-    sorted_scores, order = torch.sort(scores, dim=0, descending=True, stable=True)
-    y = truth.gather(0, order).double()
-    last = torch.ones_like(sorted_scores, dtype=torch.bool)  # last row of a block of tied scores
-    last[:-1] = sorted_scores[1:] != sorted_scores[:-1]
-    positions = torch.arange(n).unsqueeze(1).expand_as(last)
-    block_end = torch.where(last, positions, torch.full_like(positions, n - 1))
-    block_end = torch.flip(torch.cummin(torch.flip(block_end, [0]), dim=0).values, [0])
-    if weights is None:
-        tp = torch.cumsum(y, 0)
-        precision = (tp / (positions + 1).double()).gather(0, block_end)
-        total = y.sum(0)
-        return torch.where(total > 0, (y * precision).sum(0) / total, torch.nan)
-    w = torch.as_tensor(weights, dtype=torch.float32)[:, order]  # (resamples, rows, columns)
-    wy = w * y.float()
-    tp, seen = torch.cumsum(wy, 1), torch.cumsum(w, 1)
-    index = block_end.expand_as(w)
-    precision = (tp / seen.clamp_min(1e-12)).gather(1, index)
-    total = wy.sum(1)
-    return torch.where(total > 0, (wy * precision).sum(1) / total.clamp_min(1e-12), torch.nan).double()
+    order, block_end = _sorted_blocks(scores)
+    y = torch.as_tensor(truth).bool().gather(0, order).double()
+    positions = torch.arange(scores.shape[0]).unsqueeze(1)
+    precision = (torch.cumsum(y, 0) / (positions + 1).double()).gather(0, block_end)
+    total = y.sum(0)
+    return torch.where(total > 0, (y * precision).sum(0) / total, torch.nan)
+
+
+def resampled_average_precision(
+    scores: torch.Tensor,
+    truth: np.ndarray,
+    groups: np.ndarray,
+    group_weights: np.ndarray,
+    budget: int = 4_000_000,
+) -> np.ndarray:
+    """:func:`average_precision` of every column in every bootstrap resample of whole groups (episodes).
+
+    ``scores`` (rows, columns) share one ``truth`` (rows,) bool (e.g. one atom read at every layer);
+    ``groups`` (rows,) int, the group of each row; ``group_weights`` (resamples, groups) multiplicities.
+    Returns (resamples, columns), NaN where a resample draws no positive row.
+
+    A resample counts each row as often as its group is drawn, so the true positives and the rows seen above a
+    threshold are, per group, counts among the rows above it times the group's multiplicity: a small matmul
+    over the groups, evaluated at the positive rows only (the only ones that enter AP), instead of cumulative
+    sums over every (resample, row, column). Counts and multiplicities are integers, exact in float32. Columns
+    are taken in chunks of at most ``budget`` (rows x groups) entries.
+    """
+    w = torch.as_tensor(group_weights, dtype=torch.float32)  # (R, G)
+    truth_t = torch.as_tensor(np.asarray(truth, bool))
+    group_t = torch.as_tensor(np.asarray(groups), dtype=torch.long)
+    scores = torch.as_tensor(scores, dtype=torch.float64)
+    num_groups, (rows, columns) = w.shape[1], scores.shape
+    out = np.full((w.shape[0], columns), np.nan)
+    npos = int(truth_t.sum())
+    total = torch.bincount(group_t[truth_t], minlength=num_groups).float() @ w.T  # (R,) positives drawn
+    if npos == 0:
+        return out
+    chunk = max(1, budget // max(1, rows * num_groups))
+    for start in range(0, columns, chunk):
+        order, block_end = _sorted_blocks(scores[:, start : start + chunk])  # (n, c)
+        sorted_group, sorted_truth = group_t[order], truth_t[order]
+        seen = F.one_hot(sorted_group, num_groups).float()  # (n, c, G)
+        positive = (seen * sorted_truth[..., None]).cumsum(0)
+        seen = seen.cumsum(0)
+        # The positive rows' sorted positions, (npos, c), and the end of each one's block of ties.
+        at = torch.argsort((~sorted_truth).to(torch.int8), dim=0, stable=True)[:npos]
+        end = block_end.gather(0, at)[..., None].expand(-1, -1, num_groups)
+        precision = (positive.gather(0, end) @ w.T) / (seen.gather(0, end) @ w.T).clamp_min(
+            1e-12
+        )  # (npos, c, R)
+        own = w.T[sorted_group.gather(0, at)]  # (npos, c, R): each positive row's multiplicity
+        ap = (own * precision).sum(0) / total.clamp_min(1e-12)  # (c, R)
+        out[:, start : start + chunk] = torch.where(total > 0, ap, torch.nan).T.double().numpy()
+    return out
 
 
 def bootstrap_weights(num_groups: int, resamples: int, seed: int) -> np.ndarray:
@@ -135,16 +178,13 @@ def atom_metrics(
     columns = logits.permute(1, 0, 2).reshape(logits.shape[1], layers * atoms)
     truth_cols = torch.as_tensor(np.asarray(truth, bool)).repeat(1, layers)
     point["auprc"] = average_precision(columns, truth_cols).reshape(layers, atoms).numpy()
-    row_weights = torch.as_tensor(weights[:auprc_resamples][:, np.asarray(groups)])
-    ap = np.empty((len(row_weights), layers * atoms))
-    if len(row_weights):
-        chunk = max(
-            1, 4_000_000 // (len(row_weights) * len(groups))
-        )  # bounds the (resamples, rows, chunk) temporaries
-        for start in range(0, layers * atoms, chunk):
-            part = slice(start, start + chunk)
-            ap[:, part] = average_precision(columns[:, part], truth_cols[:, part], row_weights).numpy()
-    resampled["auprc"] = ap.reshape(len(row_weights), layers, atoms)
+    group_weights = weights[:auprc_resamples]
+    resampled["auprc"] = np.empty((len(group_weights), layers, atoms))
+    if len(group_weights):
+        for a in range(atoms):  # one atom at every layer: the same positives
+            resampled["auprc"][:, :, a] = resampled_average_precision(
+                logits[:, :, a].T, np.asarray(truth)[:, a], groups, group_weights
+            )
     return point, resampled
 
 
