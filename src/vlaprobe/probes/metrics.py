@@ -110,7 +110,7 @@ def resampled_average_precision(
     threshold are, per group, counts among the rows above it times the group's multiplicity: a small matmul
     over the groups, evaluated at the positive rows only (the only ones that enter AP), instead of cumulative
     sums over every (resample, row, column). Counts and multiplicities are integers, exact in float32. Columns
-    are taken in chunks of at most ``budget`` (rows x groups) entries.
+    are taken in chunks of at most ``budget`` (rows x groups) and (rows x resamples) entries.
     """
     w = torch.as_tensor(group_weights, dtype=torch.float32)  # (R, G)
     truth_t = torch.as_tensor(np.asarray(truth, bool))
@@ -122,7 +122,7 @@ def resampled_average_precision(
     total = torch.bincount(group_t[truth_t], minlength=num_groups).float() @ w.T  # (R,) positives drawn
     if npos == 0:
         return out
-    chunk = max(1, budget // max(1, rows * num_groups))
+    chunk = max(1, budget // max(1, rows * max(num_groups, w.shape[0])))
     for start in range(0, columns, chunk):
         order, block_end = _sorted_blocks(scores[:, start : start + chunk])  # (n, c)
         sorted_group, sorted_truth = group_t[order], truth_t[order]
@@ -132,9 +132,8 @@ def resampled_average_precision(
         # The positive rows' sorted positions, (npos, c), and the end of each one's block of ties.
         at = torch.argsort((~sorted_truth).to(torch.int8), dim=0, stable=True)[:npos]
         end = block_end.gather(0, at)[..., None].expand(-1, -1, num_groups)
-        precision = (positive.gather(0, end) @ w.T) / (seen.gather(0, end) @ w.T).clamp_min(
-            1e-12
-        )  # (npos, c, R)
+        tp, drawn = positive.gather(0, end) @ w.T, seen.gather(0, end) @ w.T  # (npos, c, R)
+        precision = tp / drawn.clamp_min(1e-12)
         own = w.T[sorted_group.gather(0, at)]  # (npos, c, R): each positive row's multiplicity
         ap = (own * precision).sum(0) / total.clamp_min(1e-12)  # (c, R)
         out[:, start : start + chunk] = torch.where(total > 0, ap, torch.nan).T.double().numpy()
