@@ -59,6 +59,8 @@ def test_collect_records_consistent_steps(tmp_path: Path, capsys: pytest.Capture
     result = collect(cfg, make_fake_worker)
     assert keys(cfg.out) == serial_keys([0, 2], 3, 8, keep_failed=False) == result.published
     assert result.kept == {0: (3, 3), 2: (3, 4)} and result.exhausted == []
+    # task 0's simulator was built to describe the suite; task 2's once, for its first episode
+    assert result.simulators_built == 1 and result.build_seconds > 0
 
     store = ActivationStore.open(cfg.out)
     assert (
@@ -95,7 +97,7 @@ def test_collect_records_consistent_steps(tmp_path: Path, capsys: pytest.Capture
     assert set(meta["versions"]) >= {"vlaprobe", "torch", "numpy", "zarr", "mujoco", "robosuite", "libero"}
     assert meta["runs"][0]["episodes_added"] == 6 and meta["runs"][0]["device"] == "cpu"
     out = capsys.readouterr().out
-    assert "task 2: 3/3 successful episodes, 4 tried" in out
+    assert "task 2: 3/3 successful episodes, 4 tried" in out and "1 simulator(s) built" in out
 
     # A rerun has nothing left to do.
     again = collect(cfg, make_fake_worker)
@@ -149,6 +151,7 @@ def test_two_workers_give_the_same_episodes_as_one(tmp_path: Path, monkeypatch: 
     assert keys(cfg.out) == serial_keys([0, 1, 2], 3, 8, keep_failed=True)
     assert not (cfg.out / ".staging").exists()
     assert result.episodes_run >= len(keys(cfg.out))
+    assert 2 <= result.simulators_built <= 2 * 3  # at most every task on both workers
 
 
 RUNNER = """

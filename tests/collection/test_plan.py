@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vlaprobe.collection.plan import Plan, Unit
+from vlaprobe.collection.plan import Affinity, Plan, Unit
 
 
 def serial(outcomes: dict[int, list[bool]], per_task: int, budget: int) -> dict[tuple[int, int], bool]:
@@ -23,13 +23,16 @@ def serial(outcomes: dict[int, list[bool]], per_task: int, budget: int) -> dict[
 
 def simulate(outcomes, per_task, budget, workers, rng, store, stop_after=None):
     """Drive a Plan like collect() does, finishing running units in random order; publish kept units to
-    ``store``. With ``stop_after`` events the run is killed (everything running or held is lost)."""
+    ``store``. With ``stop_after`` events the run is killed (everything running or held is lost). Each launch
+    sees a random affinity: the order it implies must not change what is kept."""
     plan = Plan(sorted(outcomes), per_task, budget, dict(store))
     running: list[Unit] = []
     events = 0
     launched = set()
     while not plan.complete():
-        while len(running) < workers and (unit := plan.next_unit(speculate=workers > 1)) is not None:
+        while len(running) < workers and (
+            unit := plan.next_unit(workers > 1, random_affinity(outcomes, rng))
+        ):
             assert (unit.task, unit.init) not in store and unit not in launched, unit
             launched.add(unit)
             plan.started(unit)
@@ -44,6 +47,12 @@ def simulate(outcomes, per_task, budget, workers, rng, store, stop_after=None):
         if stop_after is not None and events >= stop_after:
             return plan, False
     return plan, True
+
+
+def random_affinity(outcomes: dict[int, list[bool]], rng: np.random.Generator) -> Affinity:
+    tasks = list(outcomes)
+    own = int(rng.choice(tasks)) if rng.random() < 0.7 else None
+    return Affinity(own, frozenset(t for t in tasks if rng.random() < 0.4))
 
 
 @pytest.mark.parametrize("workers", [1, 2, 3, 8])
@@ -127,3 +136,46 @@ def test_first_init_skips_the_held_out_init_states() -> None:
         order.append(unit.init)
     assert order == [12, 13] and plan.complete()
     assert plan.kept(0) == (2, 4) and plan.exhausted(0)  # init 14 is past the budget of 4
+
+
+def test_affinity_orders_the_launches() -> None:
+    """The worker's own task first, then a task no other worker holds, then the lowest task."""
+    plan = Plan([0, 1, 2, 3], per_task=3, budget=10, known={})
+    assert plan.next_unit() == Unit(0, 0)
+    assert plan.next_unit(affinity=Affinity(own=2, others=frozenset({0}))) == Unit(2, 0)
+    assert plan.next_unit(affinity=Affinity(own=None, others=frozenset({0, 1}))) == Unit(2, 0)
+    assert plan.next_unit(affinity=Affinity(own=None, others=frozenset({0, 1, 2, 3}))) == Unit(0, 0)
+    for i in range(3):  # task 2's needed units all run: its worker moves on to a task nobody holds
+        plan.started(Unit(2, i))
+    assert plan.next_unit(affinity=Affinity(own=2, others=frozenset({0}))) == Unit(1, 0)
+
+
+def count_builds(workers: int, tasks: int, per_task: int, affinity: bool) -> int:
+    """Simulators built by ``workers`` that finish in turn, each rebuilt when its task changes."""
+    plan = Plan(list(range(tasks)), per_task, budget=10, known={})
+    held: dict[int, int] = {}
+    running: dict[int, Unit] = {}
+    builds = turn = 0
+    while not plan.complete():
+        for w in range(workers):
+            if w in running:
+                continue
+            seen = Affinity(held.get(w), frozenset(t for v, t in held.items() if v != w))
+            unit = plan.next_unit(True, seen if affinity else None)
+            if unit is None:
+                continue
+            builds += held.get(w) != unit.task
+            held[w], running[w] = unit.task, unit
+            plan.started(unit)
+        w = sorted(running)[turn % len(running)]
+        turn += 1
+        plan.finished(running.pop(w), True)
+    return builds
+
+
+def test_affinity_builds_each_simulator_about_once() -> None:
+    """make run's shape (10 tasks x 3 episodes, 2 workers): without affinity both workers build nearly every
+    task's simulator; with it each task is built once, plus at most one shared task per extra worker."""
+    assert count_builds(2, 10, 3, affinity=True) <= 11
+    assert count_builds(2, 10, 3, affinity=False) >= 18
+    assert count_builds(1, 10, 3, affinity=True) == 10

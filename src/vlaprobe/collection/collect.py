@@ -55,6 +55,10 @@ class CollectResult:
     """Of which: world-state snapshots and detectors."""
     write_seconds: float = 0.0
     """Time the parent spent writing and publishing."""
+    simulators_built: int = 0
+    """Simulators the workers built for this run's episodes (the one built to describe the suite aside)."""
+    build_seconds: float = 0.0
+    """Their build time, summed over workers."""
     wall_seconds: float = 0.0
     published: list[str] = field(default_factory=list)
     """Keys of the episodes this run added."""
@@ -236,7 +240,10 @@ def _loop(
     held: dict[Unit, tuple[EpisodeInfo, str, StagedEpisode | None]] = {}
     running = 0
     while not plan.complete():
-        while running < executor.capacity and (unit := plan.next_unit(speculate)) is not None:
+        while (
+            running < executor.capacity
+            and (unit := plan.next_unit(speculate, executor.affinity())) is not None
+        ):
             executor.submit(unit, unit_seed(cfg.policy.seed, unit))
             plan.started(unit)
             running += 1
@@ -252,6 +259,8 @@ def _loop(
             result.steps += episode.info.length
             result.episode_seconds += episode.seconds
             result.label_seconds += episode.label_seconds
+            result.simulators_built += episode.built
+            result.build_seconds += episode.build_seconds
             t0 = time.perf_counter()
             staged = None
             if episode.info.success or cfg.keep_failed:
@@ -279,5 +288,6 @@ def _report(cfg: CollectConfig, result: CollectResult) -> None:
     print(
         f"store {result.path}: added {len(result.published)} episode(s); this run: {result.episodes_run} episodes, "
         f"{result.steps} steps, {result.steps / max(1e-9, result.wall_seconds):.2f} steps/s, "
-        f"labelling+writing {100 * share:.1f}% of step time"
+        f"labelling+writing {100 * share:.1f}% of step time; {result.simulators_built} simulator(s) built "
+        f"({result.build_seconds:.0f} s)"
     )

@@ -16,7 +16,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from vlaprobe.collection.plan import Unit
+from vlaprobe.collection.plan import Affinity, Unit
 from vlaprobe.collection.worker import EpisodeResult, RunDescription
 from vlaprobe.configs.collect import CollectConfig
 from vlaprobe.errors import VlaprobeError
@@ -49,6 +49,10 @@ class Executor(Protocol):
         """Start one episode (at most ``capacity`` outstanding)."""
         ...
 
+    def affinity(self) -> Affinity:
+        """The simulators held by the worker that takes the next :meth:`submit` and by the others."""
+        ...
+
     def wait(self) -> list[tuple[Unit, EpisodeResult]]:
         """Block until at least one submitted episode finished; return the finished ones."""
         ...
@@ -58,6 +62,23 @@ class Executor(Protocol):
         ...
 
 
+class _Simulators:
+    """The task of each worker's last unit: the simulator its :class:`~vlaprobe.rollout.EnvCache` holds."""
+
+    def __init__(self) -> None:
+        self._task: dict[int, int] = {}
+
+    def ran(self, worker: int, unit: Unit) -> None:
+        self._task[worker] = unit.task
+
+    def affinity(self, worker: int | None) -> Affinity:
+        """Seen from ``worker`` (None: no worker is idle, nothing to prefer)."""
+        if worker is None:
+            return Affinity()
+        others = frozenset(t for w, t in self._task.items() if w != worker)
+        return Affinity(self._task.get(worker), others)
+
+
 class InlineExecutor:
     """One worker in this process (``--workers 1``)."""
 
@@ -65,12 +86,17 @@ class InlineExecutor:
         self.capacity = 1
         self._worker = make_worker(cfg)
         self._queue: deque[tuple[Unit, int]] = deque()
+        self._simulators = _Simulators()
 
     def describe(self) -> RunDescription:
         return self._worker.describe()
 
     def submit(self, unit: Unit, seed: int) -> None:
         self._queue.append((unit, seed))
+        self._simulators.ran(0, unit)
+
+    def affinity(self) -> Affinity:
+        return self._simulators.affinity(0)
 
     def wait(self) -> list[tuple[Unit, EpisodeResult]]:
         unit, seed = self._queue.popleft()
@@ -131,6 +157,7 @@ class ProcessExecutor:
             p.start()
         self._idle = list(range(cfg.workers))[::-1]
         self._busy: dict[int, Unit | None] = {}
+        self._simulators = _Simulators()
 
     def _receive(self) -> tuple[int, Any]:
         """The next answer of any busy worker; a one-line error if one died without answering."""
@@ -161,7 +188,11 @@ class ProcessExecutor:
     def submit(self, unit: Unit, seed: int) -> None:
         i = self._idle.pop()
         self._busy[i] = unit
+        self._simulators.ran(i, unit)
         self._inboxes[i].put(("run", (unit, seed)))
+
+    def affinity(self) -> Affinity:
+        return self._simulators.affinity(self._idle[-1] if self._idle else None)
 
     def wait(self) -> list[tuple[Unit, EpisodeResult]]:
         busy = dict(self._busy)
@@ -215,8 +246,9 @@ class RayExecutor:
         actor = ray.remote(num_cpus=1, num_gpus=cfg.ray_gpus_per_worker)(_Actor)
         self._actors = [actor.remote(make_worker, cfg) for _ in range(cfg.workers)]
         self.capacity = len(self._actors)
-        self._idle = list(self._actors)
-        self._pending: dict[Any, tuple[Unit, Any]] = {}
+        self._idle = list(range(self.capacity))[::-1]
+        self._pending: dict[Any, tuple[Unit, int]] = {}
+        self._simulators = _Simulators()
 
     def _get(self, ref: Any) -> Any:
         try:
@@ -228,15 +260,19 @@ class RayExecutor:
         return self._get(self._actors[0].call.remote("describe"))
 
     def submit(self, unit: Unit, seed: int) -> None:
-        actor = self._idle.pop()
-        self._pending[actor.call.remote("run", unit, seed)] = (unit, actor)
+        i = self._idle.pop()
+        self._simulators.ran(i, unit)
+        self._pending[self._actors[i].call.remote("run", unit, seed)] = (unit, i)
+
+    def affinity(self) -> Affinity:
+        return self._simulators.affinity(self._idle[-1] if self._idle else None)
 
     def wait(self) -> list[tuple[Unit, EpisodeResult]]:
         ready, _ = self._ray.wait(list(self._pending), num_returns=1)
         out = []
         for ref in ready:
-            unit, actor = self._pending.pop(ref)
-            self._idle.append(actor)
+            unit, i = self._pending.pop(ref)
+            self._idle.append(i)
             out.append((unit, self._get(ref)))
         return out
 

@@ -36,6 +36,21 @@ class Unit:
         return episode_key(self.task, self.init, self.attempt)
 
 
+@dataclass(frozen=True)
+class Affinity:
+    """Which simulators the workers hold. Building one takes seconds (LIBERO: ~2-3 s), so the worker that takes
+    the next unit keeps to its own task, and otherwise starts a task no other worker holds."""
+
+    own: int | None = None
+    """The task whose simulator the worker that takes the next unit holds (None: none yet)."""
+    others: frozenset[int] = frozenset()
+    """The tasks whose simulators the other workers hold."""
+
+    def rank(self, task: int) -> int:
+        """0 for the worker's own task, 1 for a task no worker holds, 2 for another worker's task."""
+        return 0 if task == self.own else 2 if task in self.others else 1
+
+
 @dataclass
 class _Task:
     outcome: dict[int, bool] = field(default_factory=dict)  # init -> success, for every finished/stored unit
@@ -91,18 +106,25 @@ class Plan:
         return i if i is not None and self._status(t, i) != "out" else None
 
     # ----- driving it ------------------------------------------------------------------------------------------
-    def next_unit(self, speculate: bool = False) -> Unit | None:
-        """The next unit to launch: a needed one (lowest task first), else with ``speculate`` a guess, else None."""
-        guesses = []
+    def next_unit(self, speculate: bool = False, affinity: Affinity | None = None) -> Unit | None:
+        """The next unit to launch: a needed one, else with ``speculate`` a guess, else None. Among them the
+        ``affinity`` order (the worker's own task, then a task no worker holds), then the lowest task. The
+        order changes only when a unit runs, never which units are kept."""
+        rank = (affinity or Affinity()).rank
+        needed, guesses = [], []
         for t in self.tasks:
             i = self._candidate(t)
             if i is None:
                 continue
             if self._status(t, i) == "in":
-                return Unit(t, i)
-            guesses.append((len(self._t[t].running), t, i))
+                needed.append((rank(t), t, i))
+            else:
+                guesses.append((len(self._t[t].running), rank(t), t, i))
+        if needed:
+            _, t, i = min(needed)
+            return Unit(t, i)
         if speculate and guesses:
-            _, t, i = min(guesses)
+            *_, t, i = min(guesses)
             return Unit(t, i)
         return None
 

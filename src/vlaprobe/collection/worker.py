@@ -52,6 +52,10 @@ class EpisodeResult:
     """Wall time of the step loop."""
     label_seconds: float
     """Of which: world-state snapshots and detectors."""
+    built: bool = False
+    """The worker built the task's simulator for this episode (it held another task's, or none)."""
+    build_seconds: float = 0.0
+    """Time that build took (0 without one)."""
 
 
 @dataclass
@@ -170,7 +174,11 @@ class Worker:
         Rows are the observations before each action. A successful episode ends ``post_success_steps`` rows
         after the first observation where the task succeeds (the terminal row, action NaN), a failed one
         after ``env.max_steps`` actions."""
+        built = self.runner.envs.builds
+        start = time.perf_counter()
         env = self._env_for(unit.task)
+        build = self.runner.envs.builds > built
+        build_seconds = time.perf_counter() - start if build else 0.0
         spec = PerturbSpec.parse(self.cfg.perturb)
         control = EpisodeControl() if spec.any else None
         perturber = Perturber(spec, seed, env.scene, env.goal) if spec.any else None
@@ -207,7 +215,7 @@ class Worker:
         )
         steps = rows.steps(track.codes if perturber is not None else None)
         attrs = _episode_attrs(env, perturber, round(seconds, 3))
-        return EpisodeResult(info, steps, attrs, seconds, track.label_seconds)
+        return EpisodeResult(info, steps, attrs, seconds, track.label_seconds, build, build_seconds)
 
     def close(self) -> None:
         self.runner.close()

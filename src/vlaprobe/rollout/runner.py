@@ -49,12 +49,15 @@ class EnvCache:
         """``on_new(task, env)`` runs once per simulator built (e.g. to check its vocabulary)."""
         self._make_env, self._on_new = make_env, on_new
         self.env: TaskEnv | None = None
+        self.builds = 0
+        """Simulators built so far."""
 
     def get(self, task: int) -> TaskEnv:
         """The simulator of ``task`` (the previous one is closed first when the task changes)."""
         if self.env is None or self.env.task_index != task:
             self.close()
             self.env = self._make_env(task)
+            self.builds += 1
             if self._on_new is not None:
                 self._on_new(task, self.env)
         return self.env
