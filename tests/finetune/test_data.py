@@ -6,8 +6,10 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from tests.finetune.helpers import demo_episode, write_dagger_store
 
+from vlaprobe.errors import VlaprobeError
 from vlaprobe.finetune.command import finetune
 from vlaprobe.finetune.data import load_demonstrations
 from vlaprobe.policies.openvla.actions import training_gripper
@@ -42,3 +44,12 @@ def test_finetune_learns_from_expert_and_dagger_stores_together(
     rows = sum(n for _, _, n in DEMO_EPISODES) + sum(n for _, _, n, _ in EPISODES)
     assert summary["train_episodes"] + summary["val_episodes"] == 12 + len(EPISODES)
     assert summary["train_rows"] + summary["val_rows"] == rows and summary["finished"]
+
+
+def test_tasks_keep_only_those_tasks_episodes(demo_store: Path, tmp_path: Path) -> None:
+    demos = load_demonstrations((demo_store,), 28, drop_noops=False, tasks=(0, 2))
+    assert sorted({r.task for r in demos.episodes}) == [0, 2]
+    assert len(demos.episodes) == 8 and len(demos.episode) == 8 * 24
+    store = write_dagger_store(tmp_path / "dagger", EPISODES)
+    with pytest.raises(VlaprobeError, match=r"no episodes of tasks \[5\]"):
+        load_demonstrations((store,), 28, success_only=False, tasks=(5,))

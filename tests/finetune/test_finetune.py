@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -16,13 +17,14 @@ import torch
 from safetensors.torch import load_file
 
 from vlaprobe.configs.policy import PolicyConfig
-from vlaprobe.finetune.command import finetune
+from vlaprobe.finetune.command import build_trainer, finetune
 from vlaprobe.finetune.data import load_demonstrations, split_episodes
+from vlaprobe.finetune.evaluate import validate
 from vlaprobe.policies.factory import make_policy
 from vlaprobe.policies.openvla import checkpoint
 from vlaprobe.policies.openvla.actions import encode_action, normalize_action, training_gripper
 
-LOSSES = ("train_loss", "val_loss", "val_accuracy", "val_l1", "val_l1_normalized")
+LOSSES = ("train_loss", "train_accuracy", "val_loss", "val_accuracy", "val_l1", "val_l1_normalized")
 
 
 def metrics(out: Path) -> list[dict]:
@@ -54,6 +56,7 @@ def test_loss_goes_down_and_the_checkpoint_loads(fast_cfg) -> None:
     summary = json.loads((cfg.out / "summary.json").read_text())
     assert summary["finished"] and summary["state"]["step"] == 24
     assert records[-1]["val_accuracy"] > records[0]["val_accuracy"]
+    assert 0 <= records[0]["train_accuracy"] < records[-1]["train_accuracy"] <= 1
     policy = make_policy(PolicyConfig(model=str(cfg.out / "checkpoint"), device="cpu"))
     step = policy.step(np.zeros((32, 32, 3), dtype=np.uint8), "put the bowl number 1 on the plate")
     assert step.action.shape == (7,) and np.isfinite(step.action).all()
@@ -260,3 +263,14 @@ def test_lora_on_an_official_checkpoint_folder_keeps_its_layout(shared_dir: Path
     assert policy.tokenizer.name.startswith("hf:")
     step = policy.step(np.zeros((64, 64, 3), dtype=np.uint8), "put the bowl number 1 on the plate")
     assert step.action.shape == (7,)
+
+
+def test_train_accuracy_is_the_batch_accuracy_before_the_update(fast_cfg) -> None:
+    """OpenVLA's logged ``action_accuracy``: the step-1 record's is the first batch's, with the start weights."""
+    cfg = fast_cfg(max_steps=1, eval_every=1)
+    trainer, _ = build_trainer(dataclasses.replace(cfg, out=cfg.out.with_name("probe")))
+    rows = trainer.rows(0)
+    before = validate(trainer.model, trainer.examples, rows, trainer.stats, trainer.device, len(rows))
+    assert finetune(cfg) == 0
+    (record,) = metrics(cfg.out)
+    assert record["train_accuracy"] == pytest.approx(before.accuracy, abs=1e-9)

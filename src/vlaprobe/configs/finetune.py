@@ -31,6 +31,9 @@ class FinetuneConfig:
     dataset_name: str = "libero_spatial"
     """Key of the action statistics in ``norm_stats`` (what ``--unnorm-key`` selects when the model runs)."""
     # --- data ---
+    tasks: tuple[int, ...] = ()
+    """Train only on the episodes of these task indices (e.g. ``--tasks 0`` to check that the model can learn
+    one task); empty: every task in the stores."""
     val_fraction: float = 0.1
     """Share of each task's episodes held out for validation (at least one per task with two or more)."""
     success_only: bool = True

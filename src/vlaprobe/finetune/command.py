@@ -53,7 +53,7 @@ def _check_same_data(cfg: FinetuneConfig, norm_stats: JsonObject) -> None:
 def _data(cfg: FinetuneConfig, image_size: int) -> tuple[Demonstrations, Split, JsonObject]:
     """The demonstrations, their split and the training split's statistics (``norm_stats``)."""
     demos = load_demonstrations(
-        cfg.stores, image_size, cfg.success_only, cfg.skip_post_success, cfg.drop_noops
+        cfg.stores, image_size, cfg.success_only, cfg.skip_post_success, cfg.drop_noops, cfg.tasks
     )
     split = split_episodes(demos, cfg.val_fraction, cfg.seed, cfg.val_max_samples)
     if len(split.train) < cfg.batch_size:

@@ -107,8 +107,10 @@ def load_demonstrations(
     success_only: bool = True,
     skip_post_success: bool = True,
     drop_noops: bool = True,
+    tasks: tuple[int, ...] = (),
 ) -> Demonstrations:
-    """Read the demonstration rows of every store; a one-line error for a store that cannot train a model."""
+    """Read the demonstration rows of every store (only ``tasks``' episodes when given); a one-line error for
+    a store that cannot train a model."""
     stores = [ActivationStore.open(p) for p in paths]
     images, actions, proprio, episode = [], [], [], []
     refs: list[EpisodeRef] = []
@@ -117,8 +119,12 @@ def load_demonstrations(
         # The expert's labels teach wherever the model went: a DAgger store's failed episodes count too.
         only_success = success_only and store.meta.get("driver") != "dagger"
         infos = store.episodes(success_only=only_success)
+        if tasks:
+            infos = [info for info in infos if info.task in tasks]
         if not infos:
             what = "successful episodes" if only_success else "episodes"
+            if tasks:
+                what += f" of tasks {list(tasks)}"
             raise VlaprobeError(f"store {store.path} has no {what}; collect some or pass --no-success-only")
         for info in infos:
             arrays = store.episode(info.key)

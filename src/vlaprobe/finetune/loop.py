@@ -22,7 +22,7 @@ from vlaprobe.finetune.evaluate import autocast, validate
 from vlaprobe.finetune.examples import ActionStats, Examples, make_batch
 from vlaprobe.finetune.objective import label_logits, loss_of
 from vlaprobe.finetune.state import TrainState, write_checkpoint, write_metrics
-from vlaprobe.policies.openvla.model import OpenVLA
+from vlaprobe.policies.openvla.model import ACTION_DIM, OpenVLA
 
 AUGMENT_STREAM = 1_000_003
 """Generator key that keeps the augmentation draws apart from the sample order's."""
@@ -86,15 +86,17 @@ class Trainer:
         bs = self.cfg.batch_size
         return self._order[index * bs : (index + 1) * bs]
 
-    def step(self) -> float:
-        """One optimizer step; returns its loss."""
+    def step(self) -> tuple[float, float]:
+        """One optimizer step; returns its loss and its batch's action-token accuracy (before the update)."""
         cfg, step = self.cfg, self.state.step
         rng = np.random.default_rng([cfg.seed, AUGMENT_STREAM, step]) if cfg.augment else None
         batch = make_batch(self.examples, self.rows(step), self.model, self.device, rng, cfg.crop_scale)
         for group in self.optimizer.param_groups:
             group["lr"] = lr_at(step, self.schedule.total, cfg)
         with autocast(self.device, cfg.bf16):
-            loss = loss_of(label_logits(self.model, batch), batch.labels)
+            logits = label_logits(self.model, batch)
+            loss = loss_of(logits, batch.labels)
+        hits = logits[:, :ACTION_DIM].detach().argmax(-1) == batch.labels[:, :ACTION_DIM]
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         if cfg.grad_clip > 0:
@@ -102,7 +104,7 @@ class Trainer:
             torch.nn.utils.clip_grad_norm_(params, cfg.grad_clip)
         self.optimizer.step()
         self.state.step += 1
-        return float(loss.detach())
+        return float(loss.detach()), float(hits.float().mean())
 
     def evaluate(self, scheduled: bool, rate: float) -> JsonObject:
         """Validate, append the record to ``metrics.jsonl`` and write a checkpoint (in that order)."""
@@ -121,6 +123,7 @@ class Trainer:
             "epoch": round(s.step / self.schedule.steps_per_epoch, 4),
             "lr": lr_at(max(0, s.step - 1), self.schedule.total, self.cfg),
             "train_loss": s.loss_sum / max(1, s.loss_count),
+            "train_accuracy": s.accuracy_sum / max(1, s.loss_count),
             "val_loss": v.loss,
             "val_accuracy": v.accuracy,
             "val_l1": v.l1,
@@ -135,7 +138,7 @@ class Trainer:
         out = self.cfg.out
         write_metrics(out, self.records)
         if scheduled:  # a stop's record does not restart the running training loss
-            s.loss_sum, s.loss_count = 0.0, 0
+            s.loss_sum, s.accuracy_sum, s.loss_count = 0.0, 0.0, 0
         write_checkpoint(out, self.write_model, s, self.optimizer, self.adapter() if self.adapter else None)
         return record
 
@@ -153,8 +156,9 @@ class Trainer:
         )
         try:
             while s.step < self.schedule.total:
-                loss = self.step()
+                loss, accuracy = self.step()
                 s.loss_sum += loss
+                s.accuracy_sum += accuracy
                 s.loss_count += 1
                 now = time.monotonic()
                 s.elapsed_s = base_elapsed + now - start
@@ -176,6 +180,7 @@ class Trainer:
 
 def _line(record: JsonObject) -> str:
     return (
-        f"step {record['step']}: train loss {record['train_loss']:.4f}, val loss {record['val_loss']:.4f}, "
+        f"step {record['step']}: train loss {record['train_loss']:.4f}, train token accuracy "
+        f"{record['train_accuracy']:.4f}, val loss {record['val_loss']:.4f}, "
         f"val token accuracy {record['val_accuracy']:.4f}, val L1 {record['val_l1']:.4f}"
     )

@@ -45,6 +45,8 @@ class TrainState:
     """Sum of the training losses since the last scheduled evaluation."""
     loss_count: int = 0
     """Steps in ``loss_sum``."""
+    accuracy_sum: float = 0.0
+    """Sum of the training batches' action-token accuracies over the same steps as ``loss_sum``."""
     elapsed_s: float = 0.0
     """Training wall time so far, over all resumed parts."""
 
