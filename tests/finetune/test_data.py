@@ -50,6 +50,8 @@ def test_tasks_keep_only_those_tasks_episodes(demo_store: Path, tmp_path: Path) 
     demos = load_demonstrations((demo_store,), 28, drop_noops=False, tasks=(0, 2))
     assert sorted({r.task for r in demos.episodes}) == [0, 2]
     assert len(demos.episodes) == 8 and len(demos.episode) == 8 * 24
-    store = write_dagger_store(tmp_path / "dagger", EPISODES)
-    with pytest.raises(VlaprobeError, match=r"no episodes of tasks \[5\]"):
-        load_demonstrations((store,), 28, success_only=False, tasks=(5,))
+    store = write_dagger_store(tmp_path / "dagger", EPISODES)  # tasks 0 and 1 only
+    both = load_demonstrations((demo_store, store), 28, drop_noops=False, tasks=(2,))
+    assert {r.store for r in both.episodes} == {0} and len(both.episodes) == 4
+    with pytest.raises(VlaprobeError, match=r"no demonstration of tasks \[5\] in .*pick --tasks"):
+        load_demonstrations((demo_store, store), 28, success_only=False, tasks=(5,))

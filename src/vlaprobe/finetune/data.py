@@ -119,13 +119,11 @@ def load_demonstrations(
         # The expert's labels teach wherever the model went: a DAgger store's failed episodes count too.
         only_success = success_only and store.meta.get("driver") != "dagger"
         infos = store.episodes(success_only=only_success)
-        if tasks:
-            infos = [info for info in infos if info.task in tasks]
         if not infos:
             what = "successful episodes" if only_success else "episodes"
-            if tasks:
-                what += f" of tasks {list(tasks)}"
             raise VlaprobeError(f"store {store.path} has no {what}; collect some or pass --no-success-only")
+        # A store may hold none of the chosen tasks; only all stores together must.
+        infos = [info for info in infos if not tasks or info.task in tasks]
         for info in infos:
             arrays = store.episode(info.key)
             if "image" not in arrays or "action" not in arrays:
@@ -151,6 +149,11 @@ def load_demonstrations(
                 proprio.append(np.asarray(arrays["proprio"], dtype=np.float32)[keep])
             else:
                 has_proprio = False
+    if not refs and tasks:
+        raise VlaprobeError(
+            f"no demonstration of tasks {list(tasks)} in {[str(p) for p in paths]}; pick --tasks the stores "
+            "hold (`vlaprobe info STORE` lists them per task)"
+        )
     if not refs:
         raise VlaprobeError(f"no demonstration rows left in {[str(p) for p in paths]} after the filters")
     return Demonstrations(
