@@ -6,7 +6,8 @@ cross-entropy, backward, gradient clipping and the AdamW update: exactly ``Train
 
 Timed interleaved, round after round, against (1) the same step with ``lm_head`` over every position (what a
 plain ``LlamaForCausalLM`` forward with labels computes), (2) the step with frozen, cached featurisers
-(``--freeze-vision``) and (3) a square float32 matmul whose rate is this CPU's matmul peak at the same
+(``--freeze-vision``), (3) the step compiled with ``torch.compile`` (``--compile``; its one-off compile is
+timed apart as ``compile_s``) and (4) a square float32 matmul whose rate is this CPU's matmul peak at the same
 thread count, so a slow spell of the shared machine hits all of them alike. The step's FLOPs come from
 torch's ``FlopCounterMode`` (matmuls, convolutions and attention, forward and backward); ``share_of_peak``
 = achieved GFLOP/s ÷ matmul peak. One torch thread: on a shared machine OpenMP threads spin against the other
@@ -64,9 +65,13 @@ def _examples(model: torch.nn.Module, rows: int):
     return make_examples(demos, WordHashTokenizer(), stats, model)
 
 
-def _step_fn(model, examples, rows: np.ndarray, full_logits: bool = False) -> Callable[[], float]:
+def _step_fn(
+    model, examples, rows: np.ndarray, full_logits: bool = False, compiled: bool = False
+) -> Callable[[], float]:
     from vlaprobe.finetune.examples import make_batch
-    from vlaprobe.finetune.objective import label_logits, loss_of
+    from vlaprobe.finetune.objective import loss_of, step_forward
+
+    forward = step_forward(model, compile=compiled)
 
     params = [p for p in model.parameters() if p.requires_grad]
     optimizer = torch.optim.AdamW(params, lr=1e-4, fused=True)
@@ -84,8 +89,7 @@ def _step_fn(model, examples, rows: np.ndarray, full_logits: bool = False) -> Ca
 
     def step() -> float:
         batch = make_batch(examples, rows, model, device)
-        logits = logits_everywhere(batch) if full_logits else label_logits(model, batch)
-        loss = loss_of(logits, batch.labels)
+        loss = loss_of(logits_everywhere(batch), batch.labels) if full_logits else forward(batch)[1]
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(params, 1.0)
@@ -118,6 +122,13 @@ def main() -> None:
     frozen_examples = _examples(frozen_model, BATCH)
     cache_features(frozen_examples, frozen_model, torch.device("cpu"))
     frozen = _step_fn(frozen_model, frozen_examples, rows)
+    compiled_model = OpenVLAPolicy.tiny(seed=0, device="cpu").model.train()
+    compiled_examples = _examples(compiled_model, BATCH)
+    compiled_examples.width = max(len(p) for p in compiled_examples.prompts) + 7
+    compiled = _step_fn(compiled_model, compiled_examples, rows, compiled=True)
+    start = time.perf_counter()
+    compiled()  # the one-off compile (inductor writes and builds C++ kernels)
+    compile_s = time.perf_counter() - start
     a, b = torch.randn(MATMUL, MATMUL), torch.randn(MATMUL, MATMUL)
 
     def matmul() -> None:
@@ -125,7 +136,8 @@ def main() -> None:
             torch.mm(a, b)
 
     flops = _flops(full)
-    t = _interleaved({"step": full, "full_logits": full_logits, "frozen": frozen, "matmul": matmul}, ROUNDS)
+    fns = {"step": full, "full_logits": full_logits, "frozen": frozen, "compiled": compiled, "matmul": matmul}
+    t = _interleaved(fns, ROUNDS)
     peak = 8 * 2 * MATMUL**3 / t["matmul"] / 1e9
     achieved = flops / t["step"] / 1e9
     result = {
@@ -140,6 +152,9 @@ def main() -> None:
         "ms_per_sample_full_logits": round(1000 * t["full_logits"] / BATCH, 1),
         "full_logits_over_step": round(t["full_logits"] / t["step"], 2),
         "ms_per_sample_frozen_vision": round(1000 * t["frozen"] / BATCH, 1),
+        "ms_per_sample_compiled": round(1000 * t["compiled"] / BATCH, 1),
+        "compiled_speedup": round(t["step"] / t["compiled"], 2),
+        "compile_s": round(compile_s, 1),
     }
     print(json.dumps(result))
 

@@ -21,16 +21,18 @@ fi
 # - libosmesa6: offscreen rendering without a GPU (OSMesa; Mesa's EGL is the fallback);
 # - swi-prolog-nox: runs the DIARC-syntax Prolog rules of the cognition in the tests (vlaprobe.cognition);
 # - chromium: the browser of the web UI's end-to-end test (Playwright drives /usr/bin/chromium).
+# - g++: the C++ compiler torch.compile's CPU backend builds its kernels with (`vlaprobe finetune --compile`).
 need=()
 ldconfig -p 2>/dev/null | grep -q libOSMesa || need+=(libosmesa6)
 command -v swipl >/dev/null || need+=(swi-prolog-nox)
 [[ -x /usr/bin/chromium ]] || need+=(chromium)
+command -v g++ >/dev/null || need+=(g++)
 if ((${#need[@]})); then
     if command -v apt-get >/dev/null && [[ $(id -u) == 0 ]]; then
         echo "setup: installing ${need[*]} (apt)"
         (apt-get install -y -qq "${need[@]}" >/dev/null 2>&1) || (apt-get update -qq && apt-get install -y -qq "${need[@]}" >/dev/null)
     else
-        echo "setup: missing system packages ${need[*]}; install them with apt (rendering falls back to EGL; the Prolog and browser tests are skipped)" >&2
+        echo "setup: missing system packages ${need[*]}; install them with apt (rendering falls back to EGL; the Prolog and browser tests are skipped; the --compile test needs g++)" >&2
     fi
 fi
 

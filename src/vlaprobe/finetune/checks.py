@@ -107,7 +107,8 @@ def check_run_folder(cfg: FinetuneConfig, arch: OpenVLAConfig) -> bool:
         raise VlaprobeError(
             f"--out {out} holds a checkpoint of another model shape ({diff}); choose a new --out for --model {cfg.model}"
         )
-    saved = _read_settings(out / "finetune.json")
+    # a setting added after the run was written was at its default then
+    saved = {**config_to_dict(FinetuneConfig()), **_read_settings(out / "finetune.json")}
     now = {k: v for k, v in config_to_dict(cfg).items() if k not in RUNTIME_FIELDS}
     diff = _first_difference({k: v for k, v in saved.items() if k not in RUNTIME_FIELDS}, now)
     if diff:

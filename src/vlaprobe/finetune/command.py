@@ -26,6 +26,7 @@ from vlaprobe.finetune.data import (
 )
 from vlaprobe.finetune.examples import ActionStats, cache_features, majority_accuracy, make_examples
 from vlaprobe.finetune.loop import Trainer, make_schedule
+from vlaprobe.finetune.objective import step_forward
 from vlaprobe.finetune.state import (
     CHECKPOINT,
     TrainState,
@@ -34,6 +35,7 @@ from vlaprobe.finetune.state import (
     read_metrics,
     read_train_state,
 )
+from vlaprobe.policies.openvla.model import ACTION_DIM
 
 
 def _stats_of(norm_stats: JsonObject, name: str) -> ActionStats:
@@ -47,6 +49,19 @@ def _check_same_data(cfg: FinetuneConfig, norm_stats: JsonObject) -> None:
         raise VlaprobeError(
             f"--out {cfg.out} was trained on other data (its action statistics differ from these stores'); "
             "pass the same --stores to resume, or choose a new --out"
+        )
+
+
+def _check_compiler(device: torch.device) -> None:
+    """--compile on a CPU writes C++ kernels: refuse before loading anything when no compiler is found."""
+    import os
+    import shutil
+
+    wanted = os.environ.get("CXX", "")
+    if device.type == "cpu" and not any(shutil.which(c) for c in (wanted, "g++", "c++", "clang++") if c):
+        raise VlaprobeError(
+            "--compile on a CPU needs a C++ compiler (g++, c++ or clang++ on PATH, or $CXX); "
+            "install one (apt-get install g++) or drop --compile"
         )
 
 
@@ -90,6 +105,8 @@ def build_trainer(cfg: FinetuneConfig) -> tuple[Trainer, JsonObject]:
     for path in cfg.stores:
         read_meta(path, hint="pass the --out folder of a `vlaprobe collect` run to --stores")
     device = devices.resolve_device(cfg.device)
+    if cfg.compile:
+        _check_compiler(device)
     arch = model_io.architecture(cfg.model)
     resuming = check_run_folder(cfg, arch)
     if cfg.threads is not None:
@@ -104,6 +121,8 @@ def build_trainer(cfg: FinetuneConfig) -> tuple[Trainer, JsonObject]:
     if cfg.freeze_vision:
         model.vision_backbone.requires_grad_(False)
     examples = make_examples(demos, init.tokenizer, stats, model)
+    if cfg.compile:
+        examples.width = max(len(p) for p in examples.prompts) + ACTION_DIM
     if cfg.freeze_vision:
         cache_features(examples, model, device)
         demos.images = demos.images[:0]  # the cached features replace them
@@ -143,7 +162,19 @@ def build_trainer(cfg: FinetuneConfig) -> tuple[Trainer, JsonObject]:
         else None
     )
     trainer = Trainer(
-        cfg, model, examples, split, stats, device, schedule, optimizer, writer, adapter, records, state
+        cfg,
+        model,
+        examples,
+        split,
+        stats,
+        device,
+        schedule,
+        optimizer,
+        writer,
+        adapter,
+        records,
+        state,
+        step_forward(model, cfg.compile),
     )
     return trainer, info
 

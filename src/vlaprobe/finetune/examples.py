@@ -35,6 +35,8 @@ class Examples:
     """Prompt ids per episode (ending with the empty token, as the policy feeds them)."""
     features: torch.Tensor | None
     """(N, P, V) float16 fused-backbone patch features when the featurisers are frozen, else None."""
+    width: int | None = None
+    """Sequence length every batch is right-padded to (the longest prompt + 7), or None: each batch's own."""
 
 
 def make_examples(
@@ -70,7 +72,7 @@ def make_batch(
     """The batch of ``rows``; images augmented with ``rng`` when given (never with cached features)."""
     cfg = model.config
     prompts = [examples.prompts[e] for e in examples.demos.episode[rows]]
-    ids, positions, labels = sequences(prompts, examples.tokens[rows], cfg)
+    ids, positions, labels = sequences(prompts, examples.tokens[rows], cfg, examples.width)
     if examples.features is not None:
         inputs = examples.features[torch.from_numpy(rows)].to(device)
     else:

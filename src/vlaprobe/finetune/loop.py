@@ -16,11 +16,12 @@ import numpy as np
 import torch
 
 from vlaprobe.configs.finetune import FinetuneConfig
+from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject
 from vlaprobe.finetune.data import Split
 from vlaprobe.finetune.evaluate import autocast, validate
 from vlaprobe.finetune.examples import ActionStats, Examples, make_batch
-from vlaprobe.finetune.objective import label_logits, loss_of
+from vlaprobe.finetune.objective import Batch, StepForward
 from vlaprobe.finetune.state import TrainState, write_checkpoint, write_metrics
 from vlaprobe.policies.openvla.model import ACTION_DIM, OpenVLA
 
@@ -72,6 +73,8 @@ class Trainer:
     records: list[JsonObject]
     """Metric records so far (those of a resumed checkpoint first)."""
     state: TrainState
+    forward: StepForward
+    """Batch → (label logits, loss): :func:`vlaprobe.finetune.objective.step_forward`, compiled or not."""
     _epoch: int = field(default=-1, init=False)
     _order: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64), init=False)
 
@@ -94,8 +97,7 @@ class Trainer:
         for group in self.optimizer.param_groups:
             group["lr"] = lr_at(step, self.schedule.total, cfg)
         with autocast(self.device, cfg.bf16):
-            logits = label_logits(self.model, batch)
-            loss = loss_of(logits, batch.labels)
+            logits, loss = self._forward(batch)
         hits = logits[:, :ACTION_DIM].detach().argmax(-1) == batch.labels[:, :ACTION_DIM]
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
@@ -105,6 +107,17 @@ class Trainer:
         self.optimizer.step()
         self.state.step += 1
         return float(loss.detach()), float(hits.float().mean())
+
+    def _forward(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]:
+        if not self.cfg.compile:
+            return self.forward(batch)
+        try:
+            return self.forward(batch)
+        except torch._dynamo.exc.BackendCompilerFailed as e:
+            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            raise VlaprobeError(
+                f"--compile failed to compile the training step ({first[:200]}); run without --compile"
+            ) from None
 
     def evaluate(self, scheduled: bool, rate: float) -> JsonObject:
         """Validate, append the record to ``metrics.jsonl`` and write a checkpoint (in that order)."""

@@ -13,6 +13,7 @@ attention is causal, so padding after a sequence's last label cannot change its 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,10 +68,16 @@ def pixel_batch(
 
 
 def sequences(
-    prompts: list[list[int]], tokens: np.ndarray, cfg: OpenVLAConfig
+    prompts: list[list[int]], tokens: np.ndarray, cfg: OpenVLAConfig, width: int | None = None
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(input_ids (B, L), positions (B, 8), labels (B, 8)) for prompt ids and (B, 7) action token ids."""
-    width = max(len(p) for p in prompts) + ACTION_DIM
+    """(input_ids (B, L), positions (B, 8), labels (B, 8)) for prompt ids and (B, 7) action token ids.
+
+    L is the longest prompt + 7, or ``width`` when given (one shape for every batch of a compiled step).
+    """
+    longest = max(len(p) for p in prompts) + ACTION_DIM
+    if width is not None and width < longest:
+        raise ValueError(f"width {width} is shorter than the batch's longest sequence ({longest})")
+    width = longest if width is None else width
     ids = torch.full((len(prompts), width), cfg.text.pad_token_id, dtype=torch.long)
     positions = torch.empty((len(prompts), LABELS), dtype=torch.long)
     for i, prompt in enumerate(prompts):
@@ -98,3 +105,21 @@ def label_logits(model: OpenVLA, batch: Batch) -> torch.Tensor:
 def loss_of(logits: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
     """Mean next-token cross-entropy over the 8 labels of every sequence (in float32)."""
     return F.cross_entropy(logits.float().flatten(0, 1), labels.flatten())
+
+
+StepForward = Callable[[Batch], tuple[torch.Tensor, torch.Tensor]]
+"""A batch → (its label logits (B, 8, vocab), its loss): the forward a training step differentiates."""
+
+
+def step_forward(model: OpenVLA, compile: bool = False) -> StepForward:
+    """The training step's forward, compiled with ``torch.compile`` (inductor) when asked.
+
+    The compiled graph holds the model's whole forward and the loss; autograd runs its compiled backward.
+    Batches must keep one shape (``Examples.width``), or every new sequence length compiles again.
+    """
+
+    def forward(batch: Batch) -> tuple[torch.Tensor, torch.Tensor]:
+        logits = label_logits(model, batch)
+        return logits, loss_of(logits, batch.labels)
+
+    return torch.compile(forward, dynamic=False) if compile else forward
