@@ -109,7 +109,7 @@ def _flops(step: Callable[[], float]) -> float:
 
 def main() -> None:
     torch.set_num_threads(THREADS)
-    from vlaprobe.finetune.examples import cache_features
+    from vlaprobe.finetune.examples import cache_features, longest_sequence
     from vlaprobe.policies.openvla.policy import OpenVLAPolicy
 
     model = OpenVLAPolicy.tiny(seed=0, device="cpu").model.train()
@@ -124,7 +124,7 @@ def main() -> None:
     frozen = _step_fn(frozen_model, frozen_examples, rows)
     compiled_model = OpenVLAPolicy.tiny(seed=0, device="cpu").model.train()
     compiled_examples = _examples(compiled_model, BATCH)
-    compiled_examples.width = max(len(p) for p in compiled_examples.prompts) + 7
+    compiled_examples.width = longest_sequence(compiled_examples)
     compiled = _step_fn(compiled_model, compiled_examples, rows, compiled=True)
     start = time.perf_counter()
     compiled()  # the one-off compile (inductor writes and builds C++ kernels)

@@ -96,8 +96,8 @@ class FinetuneConfig:
     compile: bool = False
     """Compile the training step's forward and backward with ``torch.compile`` (inductor; on a CPU it needs a
     C++ compiler): on a CPU the 56 px tiny model's step ran 1.5x faster (batch 16, 2 threads), the 256-patch
-    one's 1.0-1.2x (``bench/finetune.py``), after a one-off compile of a few minutes. Sequences are padded to the longest prompt so every step has one shape. Figures
-    agree with the eager step to float32 rounding, not bit for bit; compiled runs compare bit for bit with
-    each other at the same thread count."""
+    one's 1.0-1.2x (``bench/finetune.py``), after a one-off compile of a few minutes. Sequences are padded to
+    the longest prompt so every step has one shape. Figures agree with the eager step to float32 rounding,
+    not bit for bit; compiled runs compare bit for bit with each other at the same thread count."""
     progress: bool = True
     """Show a progress bar (stderr)."""

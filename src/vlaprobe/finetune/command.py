@@ -24,7 +24,13 @@ from vlaprobe.finetune.data import (
     load_demonstrations,
     split_episodes,
 )
-from vlaprobe.finetune.examples import ActionStats, cache_features, majority_accuracy, make_examples
+from vlaprobe.finetune.examples import (
+    ActionStats,
+    cache_features,
+    longest_sequence,
+    majority_accuracy,
+    make_examples,
+)
 from vlaprobe.finetune.loop import Trainer, make_schedule
 from vlaprobe.finetune.objective import step_forward
 from vlaprobe.finetune.state import (
@@ -35,7 +41,6 @@ from vlaprobe.finetune.state import (
     read_metrics,
     read_train_state,
 )
-from vlaprobe.policies.openvla.model import ACTION_DIM
 
 
 def _stats_of(norm_stats: JsonObject, name: str) -> ActionStats:
@@ -122,7 +127,7 @@ def build_trainer(cfg: FinetuneConfig) -> tuple[Trainer, JsonObject]:
         model.vision_backbone.requires_grad_(False)
     examples = make_examples(demos, init.tokenizer, stats, model)
     if cfg.compile:
-        examples.width = max(len(p) for p in examples.prompts) + ACTION_DIM
+        examples.width = longest_sequence(examples)
     if cfg.freeze_vision:
         cache_features(examples, model, device)
         demos.images = demos.images[:0]  # the cached features replace them

@@ -10,7 +10,7 @@ import torch
 from vlaprobe.finetune.data import Demonstrations
 from vlaprobe.finetune.objective import Batch, pixel_batch, sequences
 from vlaprobe.policies.openvla.actions import encode_action, normalize_action
-from vlaprobe.policies.openvla.model import OpenVLA
+from vlaprobe.policies.openvla.model import ACTION_DIM, OpenVLA
 from vlaprobe.policies.openvla.tokenizer import Tokenizer, prompt_ids
 
 
@@ -59,6 +59,11 @@ def cache_features(examples: Examples, model: OpenVLA, device: torch.device, bat
         pv = pixel_batch(images[start : start + batch_size], model.config, device)
         out.append(model.vision_backbone(pv.to(model.projector.fc1.weight.dtype)).to(torch.float16).cpu())
     examples.features = torch.cat(out)
+
+
+def longest_sequence(examples: Examples) -> int:
+    """Ids of the longest training sequence: the longest prompt + the 7 action tokens (``Examples.width``)."""
+    return max(len(p) for p in examples.prompts) + ACTION_DIM
 
 
 def make_batch(

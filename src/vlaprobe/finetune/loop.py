@@ -109,8 +109,6 @@ class Trainer:
         return float(loss.detach()), float(hits.float().mean())
 
     def _forward(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]:
-        if not self.cfg.compile:
-            return self.forward(batch)
         try:
             return self.forward(batch)
         except torch._dynamo.exc.BackendCompilerFailed as e:
