@@ -8,13 +8,14 @@ spread over permutations, selectivity, best layer).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
 from vlaprobe.configs.train import TrainConfig
 from vlaprobe.probes.baselines import BASELINES, predict_baselines
+from vlaprobe.probes.conditional import ConditionalFit, evaluate_conditional
 from vlaprobe.probes.data import ACTION_PREDICATES, OBJECT_PREDICATES, ProbeData, predicate
 from vlaprobe.probes.metrics import COUNT_METRICS, METRICS, atom_metrics, summarize
 from vlaprobe.probes.regularization import ColumnGroups
@@ -22,14 +23,15 @@ from vlaprobe.probes.results import (
     BestLayer,
     DroppedAtom,
     HeadResult,
-    Level,
     MetricSummary,
     ProbeFit,
     Spread,
+    level,
     nested,
     number,
 )
 from vlaprobe.probes.split import LabelFilter
+from vlaprobe.probes.ties import TIE_RULE, layer_resamples, tie_set
 from vlaprobe.probes.trainer import LinearProbes, fit_probes
 
 
@@ -56,6 +58,9 @@ class CrossFit:
     """(atoms,) share of true rows in the training splits (mean over folds)."""
     column_head: np.ndarray
     """(atoms,) head index of each target column (the column group sharing an L2 strength)."""
+    conditional: dict[str, ConditionalFit] = field(default_factory=dict)
+    """Baseline name -> its conditional probes' held-out logits (:mod:`vlaprobe.probes.conditional`), when
+    computed."""
 
     @property
     def num_groups(self) -> int:
@@ -168,13 +173,7 @@ def predicate_order(atoms: list[str]) -> list[str]:
 
 def _summary(point: np.ndarray, resampled: np.ndarray, groups: list[np.ndarray]) -> MetricSummary:
     s = summarize(point, resampled, groups)
-
-    def level(name: str) -> Level:
-        x = s[name]
-        count = nested(x["count"]) if "count" in x else None
-        return Level(nested(x["value"]), nested(x["low"]), nested(x["high"]), nested(x["defined"]), count)
-
-    return MetricSummary(atom=level("atom"), predicate=level("predicate"), layer=level("layer"))
+    return MetricSummary(atom=level(s["atom"]), predicate=level(s["predicate"]), layer=level(s["layer"]))
 
 
 def _nanmean(x: np.ndarray, axis: int) -> np.ndarray:
@@ -189,10 +188,18 @@ def _nanstd(x: np.ndarray, axis: int) -> np.ndarray:
 
 
 def best_layer(
-    layer_values: np.ndarray, low: np.ndarray, high: np.ndarray, layers: list[int], metric: str
+    layer_values: np.ndarray,
+    low: np.ndarray,
+    high: np.ndarray,
+    layers: list[int],
+    metric: str,
+    layer_resampled: np.ndarray | None = None,
 ) -> BestLayer:
-    """Layer with the highest mean ``metric`` over the head's atoms (first one on ties)."""
+    """Layer with the highest mean ``metric`` over the head's atoms (first one on ties), and the layers tied
+    with it (:func:`~vlaprobe.probes.ties.tie_set` on ``layer_resampled`` (resamples, layers); without
+    resamples the best layer alone)."""
     i = 0 if np.all(np.isnan(layer_values)) else int(np.nanargmax(layer_values))
+    tied = [i] if layer_resampled is None else tie_set(layer_values, layer_resampled, i)
     return BestLayer(
         layer=layers[i],
         index=i,
@@ -201,6 +208,8 @@ def best_layer(
         low=number(low[i]),
         high=number(high[i]),
         rule=f"highest mean {metric} over the head's probed atoms on held-out episodes",
+        tied=[layers[t] for t in tied],
+        tie_rule=TIE_RULE,
     )
 
 
@@ -276,6 +285,16 @@ def evaluate_head(
             m: _summary(point[m] - c_point[m], res[m] - c_res[m], groups) for m in COUNT_METRICS
         }
     result.fit = probe_fit(fitted, cols, cfg)
-    s = summarize(point[cfg.select_metric], res[cfg.select_metric], groups)["layer"]
-    result.best = best_layer(s["value"], s["low"], s["high"], data.layers, cfg.select_metric)
+    conditional = {
+        name: evaluate_conditional(
+            cf, cols, truth, fitted.groups, fitted.num_groups, threshold_logit, count_weights, groups
+        )
+        for name, cf in fitted.conditional.items()
+    }
+    result.conditional_task = conditional.get("task")
+    result.conditional_task_time = conditional.get("task_time")
+    m = cfg.select_metric
+    s = summarize(point[m], res[m], groups)["layer"]
+    resampled = layer_resamples(point[m], res[m])
+    result.best = best_layer(s["value"], s["low"], s["high"], data.layers, m, resampled)
     return result

@@ -10,12 +10,16 @@ defined (``defined``); the shuffled-label control is the mean of several permuta
 the task and task x time baselines (``task_baseline``, ``task_time_baseline``) and the selectivity over the
 latter (``selectivity_task_time``); how each probe was fit (``fit``: C per layer, cross-validation losses,
 iterations, final loss and gradient norm per probe); averages keep a fixed set of atoms in every resample.
+Version 4: the layers tied with the best one (``BestLayer.tied``; a version-3 file reads with the best layer
+alone) and conditional probing over the task and task x time baselines (``conditional_task``,
+``conditional_task_time``; absent from older files).
 """
 
 from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -26,7 +30,9 @@ from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import Json, JsonObject, write_atomic
 
 FORMAT = "vlaprobe-evaluation"
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
+READABLE_VERSIONS = (3, 4)
+"""Format versions :func:`read_evaluation` accepts (older ones gain the new fields' defaults)."""
 EVALUATION_FILE = "evaluation.json"
 CONFIG_FILE = "config.json"
 PARTS = (
@@ -93,6 +99,32 @@ class BestLayer:
     low: float | None
     high: float | None
     rule: str
+    tied: list[int] = field(default_factory=list)
+    """Hidden-state indices (ascending, the best included) of the layers statistically tied with the best:
+    the paired bootstrap interval of (best minus layer) holds 0 (:mod:`vlaprobe.probes.ties`)."""
+    tie_rule: str = ""
+
+
+@dataclass
+class ConditionalProbe:
+    """Conditional probing (Hewitt et al. 2021) over one baseline: a probe on the baseline's features (one-hot
+    cells) against one on those features plus the standardised hidden state, per layer, same split, C search,
+    solver and bootstrap resamples as the probes. The gain is the information the layer adds beyond the
+    baseline."""
+
+    baseline: str
+    """``task`` or ``task_time`` (:data:`~vlaprobe.probes.baselines.BASELINES`)."""
+    metric: str
+    features: Level
+    """(1,) the probe on the baseline features alone (it does not depend on the layer)."""
+    combined: Level
+    """(layers,) the probe on the baseline features and the layer's standardised hidden state."""
+    gain: Level
+    """(layers,) combined minus features, per resample (paired)."""
+    c_features: float | None
+    """C of the baseline-features probe (the last fold's)."""
+    c: Nested
+    """(layers,) C of the combined probes (the last fold's)."""
 
 
 @dataclass
@@ -170,6 +202,15 @@ class HeadResult:
     observer: dict[str, MetricSummary] | None = None
     """The same probes trained on a second observer's hidden states."""
     observer_best: BestLayer | None = None
+    conditional_task: ConditionalProbe | None = None
+    """Conditional probing over the task baseline (None when not computed)."""
+    conditional_task_time: ConditionalProbe | None = None
+    """Conditional probing over the task x time baseline (None when not computed)."""
+
+    def conditional(self) -> dict[str, ConditionalProbe]:
+        """Baseline name -> its conditional probing, for the baselines this run has."""
+        parts = {"task": self.conditional_task, "task_time": self.conditional_task_time}
+        return {k: v for k, v in parts.items() if v is not None}
 
     def part(self, name: str) -> dict[str, MetricSummary] | None:
         """One of :data:`PARTS` by name (None when this run has no such part)."""
@@ -274,6 +315,12 @@ def nested(x: object) -> Nested:
     return np.where(np.isnan(rounded), None, rounded).tolist()
 
 
+def level(x: Mapping[str, np.ndarray]) -> Level:
+    """A :class:`Level` from one level of :func:`~vlaprobe.probes.metrics.summarize`'s output."""
+    count = nested(x["count"]) if "count" in x else None
+    return Level(nested(x["value"]), nested(x["low"]), nested(x["high"]), nested(x["defined"]), count)
+
+
 def number(x: object) -> float | None:
     """One float rounded to 5 decimals, NaN -> None."""
     x = float(x)
@@ -306,15 +353,20 @@ def read_evaluation(folder: str | Path) -> Evaluation:
         raise VlaprobeError(f"cannot read {path}: {exc}; run vlaprobe train again") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise VlaprobeError(f"{path} is not a vlaprobe evaluation; {hint}")
-    if data.get("format_version") != FORMAT_VERSION:
+    if data.get("format_version") not in READABLE_VERSIONS:
         raise VlaprobeError(
             f"{path} is a vlaprobe evaluation of format version {data.get('format_version')}, this vlaprobe "
-            f"reads version {FORMAT_VERSION}; run vlaprobe train again"
+            f"reads versions {', '.join(map(str, READABLE_VERSIONS))}; run vlaprobe train again"
         )
     try:
-        return dacite.from_dict(Evaluation, data, config=dacite.Config(check_types=False))
+        evaluation = dacite.from_dict(Evaluation, data, config=dacite.Config(check_types=False))
     except (dacite.DaciteError, TypeError, ValueError) as exc:
         raise VlaprobeError(f"{path} is damaged ({exc}); run vlaprobe train again") from None
+    for head in evaluation.heads.values():
+        for best in (head.best, head.observer_best):
+            if best is not None and not best.tied:  # version 3: the best layer is the whole set
+                best.tied = [best.layer]
+    return evaluation
 
 
 def read_test_episodes(folder: str | Path) -> list[str]:

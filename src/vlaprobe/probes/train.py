@@ -27,6 +27,7 @@ from vlaprobe.configs.train import TrainConfig
 from vlaprobe.devices import resolve_device
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import write_atomic
+from vlaprobe.probes.conditional import conditional_fit
 from vlaprobe.probes.data import ProbeData, load_store
 from vlaprobe.probes.evaluate import CrossFit, column_groups, cross_fit, evaluate_head
 from vlaprobe.probes.metrics import bootstrap_weights
@@ -44,6 +45,7 @@ from vlaprobe.probes.results import (
     write_evaluation,
 )
 from vlaprobe.probes.split import Fold, LabelFilter, check_no_leak, filter_labels, make_folds, rows_of
+from vlaprobe.probes.ties import describe
 from vlaprobe.probes.trainer import LinearProbes, fit_probes
 
 log = logging.getLogger("vlaprobe.probes")
@@ -77,7 +79,9 @@ def main(cfg: TrainConfig) -> int:
     for head, h in read_evaluation(out).heads.items():
         best = h.best
         value = "undefined" if best.value is None else f"{best.value:.3f}"
-        print(f"{head}: {len(h.atoms)} atoms probed, best layer {best.layer} ({best.metric} {value})")
+        print(
+            f"{head}: {len(h.atoms)} atoms probed, {describe(best.layer, best.tied)} ({best.metric} {value})"
+        )
     print(f"probes and evaluation written to {out}")
     return 0
 
@@ -101,6 +105,19 @@ def train_on_data(
     column_head = np.concatenate([np.full(len(filters[h].kept), i) for i, h in enumerate(heads)])
     fitted, probes = _fit(data, cfg, seeds, targets, fold_rows, column_head)  # 3. probes and controls
     trained = time.perf_counter()
+    if cfg.conditional:  # 3b. what the hidden states add beyond task and time
+        log.info("conditional probing over the task and task x time baselines")
+        fitted.conditional = conditional_fit(
+            data.hidden,
+            data.episode,
+            data.episode_tasks,
+            targets,
+            fold_rows,
+            cfg,
+            seeds["probe"],
+            column_head,
+        )
+    conditioned = time.perf_counter()
     # 4. Evaluate everything on the same bootstrap resamples of test episodes.
     log.info("evaluating with %d bootstrap resamples of %d test episodes", cfg.bootstrap, fitted.num_groups)
     weights = bootstrap_weights(
@@ -126,6 +143,7 @@ def train_on_data(
     }
     evaluation.seconds = {
         "train": round(trained - started, 2),
+        "conditional": round(conditioned - trained, 2),
         "total": round(time.perf_counter() - started, 2),
     }
     return _save(Path(out), cfg, evaluation, ProbeSet(meta, _tensors(probes, heads, columns)))
