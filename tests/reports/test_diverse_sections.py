@@ -15,6 +15,8 @@ from vlaprobe.configs.train import ProbeConfig, TrainConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.probes import train as train_module
 from vlaprobe.probes.hypotheses_run import hypotheses
+from vlaprobe.probes.results import read_evaluation
+from vlaprobe.probes.ties import describe
 from vlaprobe.reports.report import write_report
 
 
@@ -41,6 +43,8 @@ def test_hypotheses_file_and_report_sections(probes: Path, capsys: pytest.Captur
     assert main(["hypotheses", "--probes", str(probes), "--bootstrap", "50"]) == 0
     printed = capsys.readouterr().out
     assert "H1 (object states are encoded in earlier layers" in printed and "H2 (" in printed
+    for head, h in read_evaluation(probes).heads.items():  # the layers tied with the best, named
+        assert f"evaluation.json: {describe(h.best.layer, h.best.tied)}" in printed, head
     saved = json.loads((probes / "hypotheses.json").read_text())
     assert saved["resamples"] == 50 and set(saved["heads"]) == {"object", "action"}
     assert [v["hypothesis"] for v in saved["verdicts"]] == ["H1", "H2"]

@@ -17,6 +17,7 @@ from vlaprobe.configs.train import TrainConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import OWNER_FILE
 from vlaprobe.probes import synthetic_data, train_on_data
+from vlaprobe.probes.ties import describe
 from vlaprobe.reports import write_report
 
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -194,7 +195,7 @@ def _provider(probes: Path) -> object:
 def test_page_shows_resamples_realized_split_and_control_spread(report: dict) -> None:
     text = report["page"].read_text()
     ev = report["ev"]
-    assert ev["format_version"] == 3 and ev["controls"]["shuffled_permutations"] == 5
+    assert ev["format_version"] == 4 and ev["controls"]["shuffled_permutations"] == 5
     assert "resamples defining balanced accuracy" in text and "5 permutations" in text
     split = ev["split"]
     assert split["realized_test_fraction"] == pytest.approx(3 / 12) and split["test_fraction"] == 0.2
@@ -222,3 +223,39 @@ def test_baselines_that_know_the_task_are_in_the_tables_and_the_headline(report:
         )
         assert t["headline"].replace("×", "&#215;") in text or t["headline"] in text
     assert "selectivity over the task × time baseline" in text and "task baseline (bal.)" in text
+
+
+def test_headline_table_and_heatmap_name_the_layers_tied_with_the_best(report: dict) -> None:
+    text = report["page"].read_text()
+    tables = json.loads((report["dir"] / "tables.json").read_text())
+    heat = json.loads((report["dir"] / "heatmap_accuracy.json").read_text())
+    for head, t in tables.items():
+        best = report["ev"]["heads"][head]["best"]
+        assert best["layer"] in best["tied"] and t["best_layer"]["tied"] == best["tied"]
+        others = [x for x in best["tied"] if x != best["layer"]]
+        expected = describe(best["layer"], best["tied"])
+        assert t["headline"].startswith(f"{head}: {expected};") and t["best_layer"]["tied_text"] == expected
+        assert ("tied with" in expected) == bool(others) and expected in text
+        assert heat["tied"][head] == best["tied"] and heat["best"][head] == best["layer"]
+    assert "the layers tied with its best layer" in text
+
+
+def test_conditional_probing_has_its_section_and_a_headline_per_head(report: dict) -> None:
+    text = report["page"].read_text()
+    tables = json.loads((report["dir"] / "tables.json").read_text())
+    section = json.loads((report["dir"] / "conditional.json").read_text())
+    assert "What the hidden states add beyond task and time" in text and "id='conditional'" in text
+    for head, t in tables.items():
+        h = report["ev"]["heads"][head]
+        tt = h["conditional_task_time"]
+        beyond = [i for i, low in enumerate(tt["gain"]["low"]) if low is not None and low > 0]
+        sentence = t["conditional_headline"]
+        assert sentence.startswith(f"{head}: a probe on the task × time cells alone scores")
+        assert ("add information beyond it at layers" in sentence) == bool(beyond)
+        assert ("no layer adds information beyond it" in sentence) == (not beyond)
+        assert sentence.replace("×", "&#215;") in text or sentence in text
+        rows = section["heads"][head]["rows"]
+        assert [r["layer"] for r in rows] == report["ev"]["layers"]
+        assert [r["task_time.gain"] for r in rows] == tt["gain"]["value"]
+        assert [i for i, r in enumerate(rows) if r["task_time.beyond"]] == beyond
+        assert {b["key"] for b in section["heads"][head]["baselines"]} == {"task", "task_time"}

@@ -86,17 +86,30 @@ def hypotheses(cfg: HypothesesConfig) -> Hypotheses:
     return result
 
 
+def tie_sentences(probes: Path) -> dict[str, str]:
+    """Head -> "best layer 30, tied with 8-12, 27-32" from the probe folder's ``evaluation.json`` (the set of
+    :mod:`vlaprobe.probes.ties`, computed on the same test-episode resamples as its intervals)."""
+    from vlaprobe.probes.results import read_evaluation
+    from vlaprobe.probes.ties import describe
+
+    heads = read_evaluation(probes).heads
+    return {head: describe(h.best.layer, h.best.tied or [h.best.layer]) for head, h in heads.items()}
+
+
 def main(cfg: HypothesesConfig) -> int:
     result = hypotheses(cfg)
     if cfg.json:
         print(json.dumps(result.as_dict()))
     else:
+        ties = tie_sentences(Path(cfg.probes))
         for head, h in result.heads.items():
             print(
                 f"{head:>6}: best layer {h.best} {list(h.best_interval)} (balanced accuracy {h.best_value:.3f}, "
                 f"95% {h.best_value_interval[0]:.3f}-{h.best_value_interval[1]:.3f}); earliest within it "
                 f"{h.earliest} {list(h.earliest_interval)}; steepest rise {h.steepest} {list(h.steepest_interval)}"
             )
+            if head in ties:
+                print(f"{'':>6}  evaluation.json: {ties[head]} (paired bootstrap over the test episodes)")
         for v in result.verdicts:
             print(v.sentence)
     return 0

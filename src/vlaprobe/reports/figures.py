@@ -39,6 +39,29 @@ def _render(fig: plt.Figure, dpi: int) -> Rendered:
     return Rendered(png=out[0], svg=out[1])
 
 
+@dataclass
+class TieMarks:
+    """One head's block of heatmap columns and the rows to mark on its left: the layers tied with its best."""
+
+    first_column: int
+    rows: list[int]
+    """Rows (positions) of the tied layers, the best included."""
+    best_row: int
+    tied_layers: list[int]
+    """The same layers as hidden-state indices (for the figure's data file)."""
+    best_layer: int
+
+
+def _mark_ties(ax: plt.Axes, marks: dict[str, TieMarks]) -> None:
+    """▸ at the left edge of each head's first column at its tied layers, ★ at its best (beside the values)."""
+    style = {"color": "black", "markeredgecolor": "white", "markeredgewidth": 0.5, "linestyle": "none"}
+    for m in marks.values():
+        x = m.first_column - 0.36
+        others = [r for r in m.rows if r != m.best_row]
+        ax.plot([x] * len(others), others, ">", markersize=5, **style)
+        ax.plot([x], [m.best_row], "*", markersize=9, **style)
+
+
 def heatmap(
     values: np.ndarray,
     layers: list[int],
@@ -50,11 +73,13 @@ def heatmap(
     vmin: float | None = None,
     vmax: float | None = None,
     cmap: str = "viridis",
+    marks: dict[str, TieMarks] | None = None,
 ) -> Rendered:
     """Layers (rows, first at the top) x columns, every cell annotated with its value (blank if undefined).
 
     ``split_after``: number of leading columns after which a vertical line separates two groups
-    (object predicates | action predicates).
+    (object predicates | action predicates). ``marks``: per head, the layers tied with its best, marked
+    left of its columns.
     """
     rows, cols = values.shape
     fig, ax = plt.subplots(figsize=(1.6 + 0.72 * cols, 1.4 + 0.27 * rows))
@@ -81,6 +106,8 @@ def heatmap(
     ax.set_ylabel("layer (hidden state)")
     if split_after is not None and 0 < split_after < cols:
         ax.axvline(split_after - 0.5, color="white", linewidth=2)
+    if marks:
+        _mark_ties(ax, marks)
     ax.set_title(title, fontsize=10)
     fig.colorbar(image, ax=ax, fraction=0.04, pad=0.02, label=colorbar)
     return _render(fig, dpi)

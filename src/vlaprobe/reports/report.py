@@ -7,7 +7,8 @@ Everything comes from the probe folder's ``evaluation.json`` (no recomputation).
   and ``heatmap_observer_<metric>`` when those controls exist;
 - ``curves_<head>.{png,svg,csv,json}``: every metric's mean over the head's atoms versus layer, with 95%
   bootstrap bands, next to the majority baseline, the shuffled-label control and the observer control;
-- ``tables.json``: the tables of the page (per-predicate figures at the best layer, dropped atoms);
+- ``tables.json``: the tables of the page (per-predicate figures at the best layer and the layers tied with it,
+  dropped atoms); ``conditional.json``: the conditional-probing section's per-layer gains, when computed;
 - ``index.html``: a self-contained page (figures embedded as base64 PNG) with the split, dataset size,
   dropped atoms, baselines and every plot, rendered from the Jinja2 templates in ``templates/``. Written last.
 
@@ -29,7 +30,9 @@ from vlaprobe.configs.checks import REPORT_FOLDER, check_report
 from vlaprobe.configs.report import ReportConfig
 from vlaprobe.files import Json, JsonObject, check_owned_folder, mark_folder, write_atomic
 from vlaprobe.probes.results import PARTS, Evaluation, HeadResult, arr, read_evaluation
-from vlaprobe.reports.figures import Rendered, Series, curves, heatmap, metric_label
+from vlaprobe.probes.ties import describe
+from vlaprobe.reports.conditional import conditional_headline, conditional_section
+from vlaprobe.reports.figures import Rendered, Series, TieMarks, curves, heatmap, metric_label
 from vlaprobe.reports.page import Figure, render_page
 from vlaprobe.reports.sections import Section, find_sections
 from vlaprobe.symbols.vocabulary import ACTION_PREDICATES
@@ -53,7 +56,10 @@ def write_report(cfg: ReportConfig, sections: Sequence[Section] = ()) -> Path:
     figures = _heatmaps(out, evaluation, cfg) + _curve_figures(out, evaluation, cfg)
     tables = _tables(evaluation)
     write_atomic(out / "tables.json", json.dumps(tables, indent=1) + "\n")
-    extra = [*sections, *find_sections(Path(cfg.probes))]
+    conditional = conditional_section(evaluation)
+    if conditional is not None:
+        write_atomic(out / "conditional.json", json.dumps(conditional.data, indent=1) + "\n")
+    extra = [*([conditional] if conditional else []), *sections, *find_sections(Path(cfg.probes))]
     page = out / REPORT_FILE
     write_atomic(page, render_page(title, evaluation, tables, figures, extra))
     return page
@@ -62,7 +68,8 @@ def write_report(cfg: ReportConfig, sections: Sequence[Section] = ()) -> Path:
 def _heatmap_blocks(evaluation: Evaluation, metric: str) -> list[tuple[str, str, str, str]]:
     """(part, metric, file stem, caption) of each heatmap: the probes, then the controls this run has."""
     label = metric_label(metric)
-    blocks = [("probe", metric, f"heatmap_{metric}", f"Per-predicate {label} of the probes")]
+    caption = f"Per-predicate {label} of the probes (▸ in a head's first column: the layers tied with its best layer, ★ the best)"
+    blocks = [("probe", metric, f"heatmap_{metric}", caption)]
     if any(h.selectivity is not None for h in evaluation.heads.values()):
         caption = "Selectivity: probe accuracy minus shuffled-label control accuracy"
         blocks.append(("selectivity", "accuracy", "heatmap_selectivity", caption))
@@ -79,6 +86,7 @@ def _heatmaps(out: Path, evaluation: Evaluation, cfg: ReportConfig) -> list[Figu
     figures = []
     for part, metric, stem, caption in _heatmap_blocks(evaluation, cfg.metric):
         columns, values, rows = _heatmap_data(evaluation, part, metric)
+        tied = _tied_marks(evaluation, part, columns)
         split_after = sum(1 for c in columns if c.split(": ", 1)[0] != "action")
         diverging = part == "selectivity"
         bound = float(np.nanmax(np.abs(values))) if diverging and np.isfinite(values).any() else None
@@ -93,11 +101,34 @@ def _heatmaps(out: Path, evaluation: Evaluation, cfg: ReportConfig) -> list[Figu
             vmin=-bound if bound else None,
             vmax=bound,
             cmap="RdBu_r" if diverging else "viridis",
+            marks=tied,
         )
         data = {"layers": layers, "columns": columns, "part": part, "metric": metric, "values": _list(values)}
+        if tied:
+            data["tied"] = {head: m.tied_layers for head, m in tied.items()}
+            data["best"] = {head: m.best_layer for head, m in tied.items()}
         _write_figure(out, stem, rendered, rows, data)
         figures.append(Figure(stem, caption, rendered.png))
     return figures
+
+
+def _tied_marks(evaluation: Evaluation, part: str, columns: list[str]) -> dict[str, TieMarks]:
+    """Per head: its columns of the heatmap and the rows of its best layer and the layers tied with it (the
+    probes' heatmap and the observer's, each with its own best layer)."""
+    if part not in ("probe", "observer"):
+        return {}
+    layers = list(evaluation.layers)
+    marks = {}
+    for head, h in evaluation.heads.items():
+        best = h.best if part == "probe" else h.observer_best
+        cols = [j for j, c in enumerate(columns) if c.split(": ", 1)[0] == head]
+        if best is None or not cols:
+            continue
+        tied = [t for t in best.tied if t in layers] or [best.layer]
+        marks[head] = TieMarks(
+            cols[0], [layers.index(t) for t in tied], layers.index(best.layer), tied, best.layer
+        )
+    return marks
 
 
 def _curve_figures(out: Path, evaluation: Evaluation, cfg: ReportConfig) -> list[Figure]:
@@ -124,6 +155,7 @@ def _tables(evaluation: Evaluation) -> JsonObject:
     return {
         head: {
             "headline": headline(head, h),
+            "conditional_headline": conditional_headline(head, h, list(evaluation.layers)),
             "best_layer": _best_table(h, evaluation.metrics),
             "dropped": [d.__dict__ for d in h.dropped],
             "skipped_predicates": h.skipped_predicates,
@@ -136,7 +168,8 @@ def headline(head: str, h: HeadResult) -> str:
     """One sentence: the best layer, its figure with interval, and whether it beats the task x time baseline
     beyond its interval (the paired bootstrap interval of probe minus baseline lies above 0)."""
     best, metric = h.best, h.best.metric
-    text = f"{head}: best layer {best.layer}, {metric_label(metric)} {_num(best.value)} [{_num(best.low)}, {_num(best.high)}]"
+    value = f"{metric_label(metric)} {_num(best.value)} [{_num(best.low)}, {_num(best.high)}]"
+    text = f"{head}: {describe(best.layer, best.tied or [best.layer])}; {value}"
     tt, sel = h.part("task_time_baseline"), h.part("selectivity_task_time")
     if tt is None or metric not in tt:
         return text + "."
@@ -300,7 +333,16 @@ def _best_table(h: HeadResult, metrics: list[str]) -> JsonObject:
                 spread = h.control_spread[m]
                 row[f"control.{m}.sd"] = spread.predicate[i][j] if by_predicate else spread.layer[i]
         rows.append(row)
-    return {"layer": best.layer, "metric": best.metric, "value": best.value, "rule": best.rule, "rows": rows}
+    return {
+        "layer": best.layer,
+        "metric": best.metric,
+        "value": best.value,
+        "rule": best.rule,
+        "tied": best.tied,
+        "tied_text": describe(best.layer, best.tied or [best.layer]),
+        "tie_rule": best.tie_rule,
+        "rows": rows,
+    }
 
 
 # -- files --------------------------------------------------------------------------------------------
