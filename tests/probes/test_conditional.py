@@ -139,9 +139,10 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     data = synthetic_data(
         num_tasks=3, episodes_per_task=5, steps_per_episode=30, num_layers=4, hidden_size=32, signal=8.0
     )
-    cfg = TrainConfig(bootstrap=200, auprc_bootstrap=0, shuffled_permutations=1)
+    cfg = TrainConfig(bootstrap=200, auprc_bootstrap=0, shuffled_permutations=1, conditional=True)
     on = train_on_data(data, cfg, tmp_path_factory.mktemp("on"))
     off = train_on_data(data, dataclasses.replace(cfg, conditional=False), tmp_path_factory.mktemp("off"))
+    assert not TrainConfig().conditional  # off by default: it costs more than the probes
     return on, off
 
 

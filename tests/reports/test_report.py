@@ -46,7 +46,10 @@ def report(tmp_path_factory: pytest.TempPathFactory) -> dict:
     data = dataclasses.replace(data, labels=labels)
     observer = dataclasses.replace(data, hidden=noise, model_id="random-init")
     probes = train_on_data(
-        data, TrainConfig(bootstrap=100, auprc_bootstrap=10), root / "probes", observer=observer
+        data,
+        TrainConfig(bootstrap=100, auprc_bootstrap=10, conditional=True),
+        root / "probes",
+        observer=observer,
     )
     page = write_report(ReportConfig(probes=probes, dpi=60))
     return {

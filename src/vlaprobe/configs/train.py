@@ -96,10 +96,10 @@ class TrainConfig:
     """Bootstrap resamples of test episodes for the 95% intervals of accuracy, balanced accuracy and F1."""
     auprc_bootstrap: int = 100
     """Resamples for the AUPRC intervals (costlier: scores are re-ranked per resample); 0 skips them."""
-    conditional: bool = True
-    """Conditional probing (``--no-conditional`` skips it): per layer and head, probes on the task and the
-    task x time one-hot cells with and without the standardised hidden state, same split, C search and
-    intervals; the gain is what the layer adds beyond the baseline (``conditional_task``,
-    ``conditional_task_time`` in ``evaluation.json``)."""
+    conditional: bool = False
+    """Conditional probing (``--conditional``): per layer and head, probes on the task and the task x time
+    one-hot cells with and without the standardised hidden state, same split, C search and intervals; the gain
+    is what the layer adds beyond the baseline (``conditional_task``, ``conditional_task_time`` in
+    ``evaluation.json``). Off by default: it costs more than the probes themselves (docs/probing.md)."""
     seed: int = 0
     """Seed of the split, probe minibatch order, label shuffling and bootstrap (each derives its own)."""

@@ -54,12 +54,13 @@ class TieMarks:
 
 def _mark_ties(ax: plt.Axes, marks: dict[str, TieMarks]) -> None:
     """▸ at the left edge of each head's first column at its tied layers, ★ at its best (beside the values)."""
-    style = {"color": "black", "markeredgecolor": "white", "markeredgewidth": 0.5, "linestyle": "none"}
     for m in marks.values():
         x = m.first_column - 0.36
         others = [r for r in m.rows if r != m.best_row]
-        ax.plot([x] * len(others), others, ">", markersize=5, **style)
-        ax.plot([x], [m.best_row], "*", markersize=9, **style)
+        for xs, ys, marker, size in (([x] * len(others), others, ">", 5), ([x], [m.best_row], "*", 9)):
+            ax.plot(
+                xs, ys, marker, markersize=size, color="black", markeredgecolor="white", markeredgewidth=0.5
+            )
 
 
 def heatmap(
