@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from vlaprobe.configs.train import TrainConfig
+from vlaprobe.errors import VlaprobeError
 from vlaprobe.probes import synthetic_data, train_on_data
 from vlaprobe.probes.evaluate import best_layer
 from vlaprobe.probes.metrics import nan_percentiles, summarize
@@ -110,3 +111,11 @@ def test_a_version_3_evaluation_still_reads_with_the_best_layer_alone(trained: P
     ev = read_evaluation(tmp_path)
     for h in ev.heads.values():
         assert h.best.tied == [h.best.layer] and h.conditional() == {}
+
+
+def test_a_newer_evaluation_is_refused_with_one_line(trained: Path, tmp_path: Path) -> None:
+    data = json.loads((trained / EVALUATION_FILE).read_text())
+    data["format_version"] = 5
+    (tmp_path / EVALUATION_FILE).write_text(json.dumps(data))
+    with pytest.raises(VlaprobeError, match="format version 5, this vlaprobe reads versions 3, 4"):
+        read_evaluation(tmp_path)
