@@ -75,7 +75,7 @@ def _heatmap_blocks(evaluation: Evaluation, metric: str) -> list[tuple[str, str,
         blocks.append(("selectivity", "accuracy", "heatmap_selectivity", caption))
     if evaluation.controls.observer is not None:
         observer = evaluation.controls.observer.model_id
-        caption = f"Per-predicate {label} of probes on the observer control ({observer})"
+        caption = f"Per-predicate {label} of probes on the observer control ({observer}; ▸ ★ its own tie set)"
         blocks.append(("observer", metric, f"heatmap_observer_{metric}", caption))
     return blocks
 
