@@ -311,7 +311,7 @@ def test_full_disk_is_found_before_training(store: Path, monkeypatch: pytest.Mon
 def test_monitor_out_is_checked_first(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     a_file = tmp_path / "file"
     a_file.write_text("x")
-    argv = ["monitor", "--store", str(tmp_path / "none"), "--out", str(a_file)]
+    argv = ["cognition", "--store", str(tmp_path / "none"), "--out", str(a_file)]
     assert f"--out {a_file} is a file, not a folder" in one_line_error(capsys, argv)  # not "no store"
 
 
@@ -446,7 +446,7 @@ def test_monitor_refuses_a_damaged_store(
     else:
         for c in chunks:
             c.write_bytes(b"not a chunk" * 8)
-    argv = ["monitor", "--store", str(store), "--probes", str(probes), "--all-episodes"]
+    argv = ["cognition", "--store", str(store), "--probes", str(probes), "--all-episodes"]
     err = one_line_error(capsys, argv)
     assert "damaged episode" in err and "rerun `vlaprobe collect`" in err
 

@@ -20,7 +20,7 @@ from typing import Annotated, Any
 
 import tyro
 
-from vlaprobe.commands import COMMANDS, Command
+from vlaprobe.commands import ALIASES, COMMANDS, Command
 from vlaprobe.envs.checks import precheck
 from vlaprobe.errors import VlaprobeError
 
@@ -173,6 +173,9 @@ def main(argv: list[str] | None = None) -> int:
             given = f"unknown option {args[0]!r}" if args else "no command given"
             raise VlaprobeError(f"{given}; usage: vlaprobe COMMAND [OPTIONS] (see `vlaprobe --help`)")
         name = args[0]
+        if name in ALIASES:
+            name = ALIASES[name]
+            print(f"vlaprobe: `vlaprobe {args[0]}` is deprecated; use `vlaprobe {name}`", file=sys.stderr)
         if name not in COMMANDS:
             raise VlaprobeError(
                 f"unknown command {name!r}; the commands are {', '.join(COMMANDS)} (see `vlaprobe --help`)"

@@ -210,7 +210,7 @@ def repair_hint(path: str | Path, damage: list[Damage]) -> str:
 
 def require_intact(path: str | Path, read: bool = False, keys: Iterable[str] | None = None) -> None:
     """Raise a one-line :class:`VlaprobeError` naming the damaged episodes and the repair, if any (``read``,
-    ``keys``: as :func:`check_store`; `monitor` and `serve --store` decode the episodes they read)."""
+    ``keys``: as :func:`check_store`; `cognition` and `serve --store` decode the episodes they read)."""
     damage = check_store(path, read=read, keys=keys)
     if damage:
         raise VlaprobeError(f"{describe(path, damage)}; {repair_hint(path, damage)}")
