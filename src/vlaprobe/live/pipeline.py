@@ -18,9 +18,8 @@ from vlaprobe.cognition.core import CognitionStep, Violation
 from vlaprobe.cognition.subgoals import Event, SubgoalState
 from vlaprobe.live import protocol as P
 from vlaprobe.rollout import StepRecord, StepTimings, SuccessTracker
-from vlaprobe.symbols import Goal
+from vlaprobe.symbols import HEADS, Goal
 
-HEADS = ("object", "action")
 STORE_PREFIX = "store-"
 """Ids of a store's episodes are ``store-<key>`` (``StoreEpisodes.PREFIX``)."""
 

@@ -5,7 +5,8 @@
 with keyword arguments) import torch only when called, so importing this package stays cheap.
 """
 
-from vlaprobe.policies.base import POOLINGS, PolicyStep, Pooling, VLAPolicy
+from vlaprobe.configs.policy import POOLINGS, Pooling
+from vlaprobe.policies.base import PolicyStep, VLAPolicy
 from vlaprobe.policies.factory import load_policy, make_policy
 
 __all__ = ["POOLINGS", "PolicyStep", "Pooling", "VLAPolicy", "load_policy", "make_policy"]

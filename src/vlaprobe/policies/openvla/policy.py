@@ -8,15 +8,16 @@ gripper convention.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import torch
 
 from vlaprobe import devices
+from vlaprobe.configs.policy import POOLINGS, Pooling, Preprocessing
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject
-from vlaprobe.policies.base import POOLINGS, PolicyStep, Pooling
+from vlaprobe.policies.base import PolicyStep
 from vlaprobe.policies.openvla import actions, checkpoint, preprocessing
 from vlaprobe.policies.openvla.embedded import SEEDED_MODELS, embedded_folder
 from vlaprobe.policies.openvla.model import OpenVLA, Prediction, _pool
@@ -47,7 +48,7 @@ class OpenVLAPolicy:
         pooling: Pooling = "last_prompt",
         unnorm_key: str = "libero_spatial",
         center_crop: bool = True,
-        preprocessing: Literal["numpy", "tf"] = "numpy",
+        preprocessing: Preprocessing = "numpy",
         source: str = "tiny",
         seed: int | None = None,
     ) -> None:
