@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vlaprobe.collection.store import ATOM_ARRAYS, read_meta
+from vlaprobe.collection.store import ATOM_ARRAYS, array_at, read_meta
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject
 
@@ -144,7 +144,7 @@ def _read_all(path: Path, key: str, names: set[str]) -> str | None:
     root = zarr.open_group(zarr.storage.LocalStore(path, read_only=True), mode="r")
     for name in sorted(names):
         try:
-            np.asarray(root[f"episodes/{key}/{name}"][...])
+            np.asarray(array_at(root, f"episodes/{key}/{name}")[...])
         except Exception as exc:  # zstd/blosc/JSON errors of a damaged file: any of them means damage
             return f"{name}: cannot be read ({type(exc).__name__}: {str(exc)[:80]})"
     return None
