@@ -18,6 +18,7 @@ import json
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import SupportsFloat
 
 import dacite
 import numpy as np
@@ -255,7 +256,7 @@ class Evaluation:
     heads: dict[str, HeadResult]
     config: JsonObject
     seeds: dict[str, int]
-    versions: dict[str, str]
+    versions: dict[str, str | None]
     skipped_heads: dict[str, SkippedHead] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=dict)
     format: str = FORMAT
@@ -271,10 +272,10 @@ def nested(x: object) -> Nested:
     if a.dtype.kind in "iub":
         return a.tolist()
     rounded = np.round(a.astype(np.float64), 5)
-    return np.where(np.isnan(rounded), None, rounded).tolist()
+    return np.where(np.isnan(rounded), np.array(None), rounded).tolist()
 
 
-def number(x: object) -> float | None:
+def number(x: SupportsFloat) -> float | None:
     """One float rounded to 5 decimals, NaN -> None."""
     x = float(x)
     return None if math.isnan(x) else round(x, 5)
