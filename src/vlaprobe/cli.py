@@ -16,7 +16,7 @@ import json
 import re
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Protocol
 
 import tyro
 
@@ -92,6 +92,12 @@ def _with_config_flag(cls: type, default: Any) -> type:
     )
 
 
+class _Parsed(Protocol):
+    """The parsed flags: ``--config`` and the command's config."""
+
+    cfg: object
+
+
 def _parse_command(name: str, command: Command, args: list[str]) -> Any:
     cls = command.config_class()
     path = _config_path(args)
@@ -100,7 +106,7 @@ def _parse_command(name: str, command: Command, args: list[str]) -> Any:
     captured = io.StringIO()
     try:
         with contextlib.redirect_stderr(captured):
-            parsed = tyro.cli(
+            parsed: _Parsed = tyro.cli(
                 _with_config_flag(cls, default), args=args, prog=f"vlaprobe {name}", description=command.help
             )
     except SystemExit as exc:

@@ -23,7 +23,9 @@ class Command:
     """One line for ``vlaprobe --help``."""
 
     def config_class(self) -> type:
-        return _resolve(self.config)
+        cls = _resolve(self.config)
+        assert isinstance(cls, type), self.config
+        return cls
 
     def function(self) -> Callable[[object], object]:
         """The command's entry ``(config) -> exit status``."""

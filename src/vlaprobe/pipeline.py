@@ -76,6 +76,7 @@ def run(cfg: RunConfig) -> Path:
     check_run_suite(cfg)
     check_owned_folder(cfg.out, RUN_FOLDER)
     cfg = stage_configs(cfg)
+    assert cfg.train.out is not None and cfg.report.out is not None  # stage_configs set them
     check_probe_folder(cfg.train.out, "--out")
     check_owned_folder(cfg.report.out, REPORT_FOLDER, "--out")
     mark_folder(cfg.out, RUN_FOLDER.owner)

@@ -6,6 +6,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal, get_args
 
+from vlaprobe.errors import VlaprobeError
+
 Pooling = Literal["last_prompt", "mean_text", "mean_all", "action_tokens"]
 """How each layer's states over the sequence become the recorded vector:
 
@@ -20,6 +22,15 @@ Pooling = Literal["last_prompt", "mean_text", "mean_all", "action_tokens"]
 """
 
 POOLINGS: tuple[Pooling, ...] = get_args(Pooling)
+
+
+def pooling_of(name: str) -> Pooling:
+    """``name`` (e.g. read from a probe folder) as a :data:`Pooling`; one line naming the known ones if unknown."""
+    for pooling in POOLINGS:
+        if pooling == name:
+            return pooling
+    raise VlaprobeError(f"unknown pooling {name!r}; use one of {list(POOLINGS)}")
+
 
 Preprocessing = Literal["numpy", "tf"]
 """LIBERO image pipeline: "numpy" (bit-exact re-implementation) or "tf" (TensorFlow, extra `tf`)."""

@@ -50,7 +50,8 @@ class Readout(Protocol):
 class EpisodeCognition(Protocol):
     """One episode's cognition (``vlaprobe.cognition.Cognition``, as ``live.serve.DiarcCognition`` spells it)."""
 
-    subgoals: Sequence[SubgoalState]
+    @property
+    def subgoals(self) -> Sequence[SubgoalState]: ...
 
     def step(self, object_values: np.ndarray, action_values: np.ndarray) -> CognitionStep: ...
 
@@ -103,7 +104,7 @@ def _events(items: Sequence[Event]) -> list[P.Event]:
 
 
 def _subgoals(items: Sequence[SubgoalState]) -> list[P.SubgoalState]:
-    return [P.SubgoalState(index=int(g.index), name=str(g.name), status=str(g.status)) for g in items]
+    return [P.SubgoalState(index=int(g.index), name=str(g.name), status=g.status) for g in items]
 
 
 def status_line(t: int, success_step: int | None, last: bool) -> str:

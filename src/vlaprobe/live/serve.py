@@ -150,12 +150,14 @@ def build_engine(
     if policy is None:
         import torch
 
-        from vlaprobe.configs.policy import PolicyConfig
+        from vlaprobe.configs.policy import PolicyConfig, pooling_of
         from vlaprobe.policies import make_policy
 
         torch.set_num_threads(cfg.threads or default_threads(1))
         policy = make_policy(
-            PolicyConfig(model=cfg.model, pooling=probes.pooling, device=cfg.device, seed=cfg.seed)
+            PolicyConfig(
+                model=cfg.model, pooling=pooling_of(probes.pooling), device=cfg.device, seed=cfg.seed
+            )
         )
     probes.check(model_id=policy.model_id, pooling=policy.pooling)
     if make_env is None or tasks is None:
