@@ -28,6 +28,7 @@ OUT = REPO / "test-output" / "browser"
 
 pytestmark = [
     pytest.mark.libero,
+    pytest.mark.serial,  # a browser, a server and the simulator: timed waits
     pytest.mark.timeout(900),
     pytest.mark.skipif(
         not CHROMIUM.exists(), reason="needs Debian's chromium at /usr/bin/chromium (apt install chromium)"
