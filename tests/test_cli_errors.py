@@ -283,7 +283,8 @@ def test_files_helper_refuses_a_read_only_folder(tmp_path: Path) -> None:
     ],
 )
 def test_bad_model_config_is_one_line(tmp_path: Path, change: dict, message: str) -> None:
-    from vlaprobe.policies import load_policy
+    from vlaprobe.configs.policy import PolicyConfig
+    from vlaprobe.policies import make_policy
     from vlaprobe.policies.openvla.config import to_official
     from vlaprobe.policies.openvla.tiny import tiny_config
 
@@ -291,7 +292,7 @@ def test_bad_model_config_is_one_line(tmp_path: Path, change: dict, message: str
     official["text_config"] = {**official["text_config"], **change}
     (tmp_path / "config.json").write_text(json.dumps(official))
     with pytest.raises(VlaprobeError, match=message) as err:
-        load_policy(str(tmp_path), device="cpu")
+        make_policy(PolicyConfig(str(tmp_path), device="cpu"))
     assert "\n" not in str(err.value)
 
 

@@ -118,7 +118,7 @@ class OpenVLAPolicy:
 
     @classmethod
     def load(cls, model: str, device: str = "auto", seed: int = 0, **kwargs: Any) -> OpenVLAPolicy:
-        """``load_policy``'s implementation: a seeded name ("tiny", "tiny-libero-init"), a shipped model's name
+        """``make_policy``'s implementation: a seeded name ("tiny", "tiny-libero-init"), a shipped model's name
         ("tiny-libero") or a checkpoint folder."""
         if model in SEEDED_MODELS:
             return cls.tiny(seed=seed, device=device, patch_size=SEEDED_MODELS[model], **kwargs)
@@ -126,7 +126,7 @@ class OpenVLAPolicy:
         return cls.from_folder(model if folder is None else folder, device=device, **kwargs)
 
     def save_pretrained(self, folder: str | Path) -> None:
-        """Write this model (safetensors + JSON config) so ``load_policy(folder)`` rebuilds it exactly."""
+        """Write this model (safetensors + JSON config) so ``make_policy(PolicyConfig(folder))`` rebuilds it exactly."""
         if not isinstance(self.tokenizer, WordHashTokenizer):
             raise VlaprobeError(
                 "save_pretrained writes models with the built-in tokenizer; copy an official checkpoint folder instead"
