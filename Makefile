@@ -16,15 +16,24 @@ run: setup
 	.venv/bin/vlaprobe run
 
 # The web UI's unit tests (vitest) run too where Node is installed (setup ran `npm ci` then).
-# vitest first, so that pytest's summary closes the output.
+# pytest in two passes: the tests marked `serial` (timed, or a browser + server + simulator) alone, then the
+# rest on two pytest-xdist workers with one torch/BLAS thread each (tests/conftest.py), file by file so a
+# module's fixtures are built once. Both passes run even if the first fails; the second's summary closes the output.
 test: setup
 	@if command -v npm >/dev/null; then cd web && npm test --silent; else echo "make test: npm missing, web unit tests skipped"; fi
-	.venv/bin/pytest -q
+	@status=0; \
+	.venv/bin/pytest -q -m serial || status=$$?; \
+	OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 .venv/bin/pytest -q -m "not serial" -n 2 --dist loadfile || status=$$?; \
+	exit $$status
 
 # Rebuild the web UI into src/vlaprobe/live/ui when web/ changed (setup does this too).
 ui:
 	@bash scripts/build_web.sh
 
+# ruff (lint and format) on the Python trees, mypy on src/ (configured in pyproject.toml), ESLint on web/src
+# where Node is installed.
 lint: setup
-	.venv/bin/ruff check src tests bench
-	.venv/bin/ruff format --check src tests bench
+	.venv/bin/ruff check src tests bench scripts
+	.venv/bin/ruff format --check src tests bench scripts
+	.venv/bin/mypy
+	@if command -v npm >/dev/null; then cd web && npm run --silent lint; else echo "make lint: npm missing, ESLint skipped"; fi

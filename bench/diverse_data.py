@@ -205,13 +205,14 @@ def _baselines(records: list[dict]) -> dict[str, dict[str, float]] | None:
     except ImportError:
         return None
     from vlaprobe.probes.split import filter_labels, rows_of, split_episodes
+    from vlaprobe.symbols import HEADS
 
     tasks = np.array([r["task"] for r in records])
     episode = np.concatenate([np.full(r["length"], i) for i, r in enumerate(records)])
     (fold,) = split_episodes(tasks, 0.2, 1, 0)
     train, test = rows_of(episode, fold.train), rows_of(episode, fold.test)
     out: dict[str, dict[str, float]] = {}
-    for head in ("object", "action"):
+    for head in HEADS:
         y = np.concatenate([np.array(r[head], bool) for r in records])
         kept = filter_labels(y[train], [str(i) for i in range(y.shape[1])], 0.01, 0.99).kept
         pred = predict_baselines(y[:, kept], episode, tasks, train, test)

@@ -32,6 +32,7 @@ from vlaprobe.probes.evaluate import column_groups
 from vlaprobe.probes.metrics import metrics_from_counts
 from vlaprobe.probes.split import filter_labels, rows_of, split_episodes
 from vlaprobe.probes.trainer import fit_probes
+from vlaprobe.symbols import HEADS
 
 C = 1.0
 
@@ -72,7 +73,7 @@ def main() -> None:
     )  # fmt: skip
     fold = split_episodes(data.episode_tasks, test_fraction=0.2, folds=1, seed=0)[0]
     train, test = rows_of(data.episode, fold.train), rows_of(data.episode, fold.test)
-    y = np.concatenate([data.labels[h] for h in ("object", "action")], 1)
+    y = np.concatenate([data.labels[h] for h in HEADS], 1)
     y = y[:, filter_labels(y[train], [str(i) for i in range(y.shape[1])], 0.01, 0.99).kept]
     size = {"steps": data.num_steps, "layers": 33, "hidden": args.hidden, "train_steps": len(train)}
     size |= {"test_steps": len(test), "kept_labels": y.shape[1], "threads": args.threads}

@@ -19,11 +19,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from vlaprobe.configs.policy import PolicyConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.finetune.data import load_demonstrations, split_episodes
 from vlaprobe.finetune.evaluate import validate
 from vlaprobe.finetune.examples import ActionStats, make_examples
-from vlaprobe.policies.factory import load_policy
+from vlaprobe.policies.factory import make_policy
 from vlaprobe.policies.openvla.policy import OpenVLAPolicy
 
 
@@ -38,7 +39,7 @@ def fit_check(
     model: str, stores: tuple[Path, ...], val_fraction: float, seed: int, n: int
 ) -> dict[str, dict]:
     """Token accuracy, L1 and loss of ``model`` on ``n`` training and ``n`` validation rows."""
-    policy = load_policy(model, device="cpu")
+    policy = make_policy(PolicyConfig(model, device="cpu"))
     if not isinstance(policy, OpenVLAPolicy):
         raise VlaprobeError(f"{model} is not an OpenVLA model; pass a checkpoint folder or a shipped name")
     net = policy.model.float().eval()

@@ -1,4 +1,4 @@
-"""Shared test setup: LIBERO assets and the shared reference folder."""
+"""Shared test setup: LIBERO assets, the shared reference folder, one BLAS/torch thread per xdist worker."""
 
 from __future__ import annotations
 
@@ -9,6 +9,15 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("VLAPROBE_SHARED", REPO.parent / "shared"))
+
+# `make test` runs two pytest-xdist workers on the parallel pass: each on one thread (two workers with a thread
+# per core each oversubscribe the cores several times over). Set before torch is imported by any test.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ[var] = "1"
+    import torch
+
+    torch.set_num_threads(1)
 
 # Offline machines: use the shared assets folder beside the checkout when the user named none.
 if "VLAPROBE_LIBERO_ASSETS" not in os.environ and (SHARED / "libero_assets").is_dir():

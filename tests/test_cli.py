@@ -55,6 +55,20 @@ def test_unknown_command_is_named(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["--help"]) == 0 and "model-info" in capsys.readouterr().out
 
 
+def test_monitor_is_a_deprecated_alias_of_cognition(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    seen = []
+    monkeypatch.setattr("vlaprobe.cognition.monitor.main", lambda cfg: seen.append(cfg) or 0)
+    argv = ["--store", str(tmp_path / "s"), "--probes", str(tmp_path / "p")]
+    assert main(["cognition", *argv]) == 0
+    assert capsys.readouterr().err == ""
+    assert main(["monitor", *argv]) == 0
+    assert capsys.readouterr().err == "vlaprobe: `vlaprobe monitor` is deprecated; use `vlaprobe cognition`\n"
+    assert seen[0] == seen[1]
+    assert "monitor" not in COMMANDS  # --help lists the new name only
+
+
 def test_run_config_round_trips_through_json() -> None:
     cfg = RunConfig()
     cfg.collect.tasks = (0, 4)

@@ -283,7 +283,8 @@ def test_files_helper_refuses_a_read_only_folder(tmp_path: Path) -> None:
     ],
 )
 def test_bad_model_config_is_one_line(tmp_path: Path, change: dict, message: str) -> None:
-    from vlaprobe.policies import load_policy
+    from vlaprobe.configs.policy import PolicyConfig
+    from vlaprobe.policies import make_policy
     from vlaprobe.policies.openvla.config import to_official
     from vlaprobe.policies.openvla.tiny import tiny_config
 
@@ -291,7 +292,7 @@ def test_bad_model_config_is_one_line(tmp_path: Path, change: dict, message: str
     official["text_config"] = {**official["text_config"], **change}
     (tmp_path / "config.json").write_text(json.dumps(official))
     with pytest.raises(VlaprobeError, match=message) as err:
-        load_policy(str(tmp_path), device="cpu")
+        make_policy(PolicyConfig(str(tmp_path), device="cpu"))
     assert "\n" not in str(err.value)
 
 
@@ -311,7 +312,7 @@ def test_full_disk_is_found_before_training(store: Path, monkeypatch: pytest.Mon
 def test_monitor_out_is_checked_first(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     a_file = tmp_path / "file"
     a_file.write_text("x")
-    argv = ["monitor", "--store", str(tmp_path / "none"), "--out", str(a_file)]
+    argv = ["cognition", "--store", str(tmp_path / "none"), "--out", str(a_file)]
     assert f"--out {a_file} is a file, not a folder" in one_line_error(capsys, argv)  # not "no store"
 
 
@@ -446,7 +447,7 @@ def test_monitor_refuses_a_damaged_store(
     else:
         for c in chunks:
             c.write_bytes(b"not a chunk" * 8)
-    argv = ["monitor", "--store", str(store), "--probes", str(probes), "--all-episodes"]
+    argv = ["cognition", "--store", str(store), "--probes", str(probes), "--all-episodes"]
     err = one_line_error(capsys, argv)
     assert "damaged episode" in err and "rerun `vlaprobe collect`" in err
 

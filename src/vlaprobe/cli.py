@@ -16,11 +16,11 @@ import json
 import re
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Protocol
 
 import tyro
 
-from vlaprobe.commands import COMMANDS, Command
+from vlaprobe.commands import ALIASES, COMMANDS, Command
 from vlaprobe.envs.checks import precheck
 from vlaprobe.errors import VlaprobeError
 
@@ -92,6 +92,12 @@ def _with_config_flag(cls: type, default: Any) -> type:
     )
 
 
+class _Parsed(Protocol):
+    """The parsed flags: ``--config`` and the command's config."""
+
+    cfg: object
+
+
 def _parse_command(name: str, command: Command, args: list[str]) -> Any:
     cls = command.config_class()
     path = _config_path(args)
@@ -100,7 +106,7 @@ def _parse_command(name: str, command: Command, args: list[str]) -> Any:
     captured = io.StringIO()
     try:
         with contextlib.redirect_stderr(captured):
-            parsed = tyro.cli(
+            parsed: _Parsed = tyro.cli(
                 _with_config_flag(cls, default), args=args, prog=f"vlaprobe {name}", description=command.help
             )
     except SystemExit as exc:
@@ -173,6 +179,9 @@ def main(argv: list[str] | None = None) -> int:
             given = f"unknown option {args[0]!r}" if args else "no command given"
             raise VlaprobeError(f"{given}; usage: vlaprobe COMMAND [OPTIONS] (see `vlaprobe --help`)")
         name = args[0]
+        if name in ALIASES:
+            name = ALIASES[name]
+            print(f"vlaprobe: `vlaprobe {args[0]}` is deprecated; use `vlaprobe {name}`", file=sys.stderr)
         if name not in COMMANDS:
             raise VlaprobeError(
                 f"unknown command {name!r}; the commands are {', '.join(COMMANDS)} (see `vlaprobe --help`)"

@@ -23,7 +23,9 @@ class Command:
     """One line for ``vlaprobe --help``."""
 
     def config_class(self) -> type:
-        return _resolve(self.config)
+        cls = _resolve(self.config)
+        assert isinstance(cls, type), self.config
+        return cls
 
     def function(self) -> Callable[[object], object]:
         """The command's entry ``(config) -> exit status``."""
@@ -46,10 +48,13 @@ COMMANDS: dict[str, Command] = {
     "compare-splits": Command("vlaprobe.configs.hypotheses:CompareSplitsConfig", "vlaprobe.probes.cross_task:main", "Within-task vs leave-one-task-out probes of one store, predicate by predicate."),
     "compare-stores": Command("vlaprobe.configs.stores:CompareStoresConfig", "vlaprobe.probes.store_compare:main", "Stores side by side: task and task x time baselines, distinct states, atoms varying within episodes."),
     "report": Command("vlaprobe.configs.report:ReportConfig", "vlaprobe.pipeline:report_main", "Write the heatmap, curves and HTML page."),
-    "monitor": Command("vlaprobe.configs.monitor:MonitorConfig", "vlaprobe.cognition.monitor:main", "Run the cognition (beliefs, rules, subgoals) on stored episodes: truth vs probe predictions."),
+    "cognition": Command("vlaprobe.configs.monitor:MonitorConfig", "vlaprobe.cognition.monitor:main", "The offline cognition evaluation: beliefs, rules, subgoals on stored episodes, truth vs probe predictions."),
     "model-info": Command("vlaprobe.configs.policy:ModelInfoConfig", "vlaprobe.policies.openvla.commands:model_info", "Load a VLA policy and print its description (with --step: one timed step) as JSON."),
-    "serve": Command("vlaprobe.configs.serve:ServeConfig", "vlaprobe.live.serve:main", "Live monitor: stream episodes (simulator, model, probes, cognition) over a WebSocket; record and replay."),
+    "serve": Command("vlaprobe.configs.serve:ServeConfig", "vlaprobe.live.serve:main", "The live monitor: stream episodes (simulator, model, probes, cognition) over a WebSocket; record and replay."),
     "finetune": Command("vlaprobe.configs.finetune:FinetuneConfig", "vlaprobe.finetune.command:finetune", "Fine-tune an OpenVLA model (tiny or a checkpoint) on collected expert episodes with OpenVLA's objective."),
     "save-tiny": Command("vlaprobe.configs.policy:SaveTinyConfig", "vlaprobe.policies.openvla.commands:save_tiny", "Write the seeded tiny OpenVLA as a checkpoint folder (config.json + model.safetensors)."),
 }  # fmt: skip
 """Every subcommand by name, in ``vlaprobe --help`` order."""
+
+ALIASES: dict[str, str] = {"monitor": "cognition"}
+"""Deprecated command names -> the command they run (each prints one deprecation line on stderr)."""

@@ -1,4 +1,4 @@
-"""``vlaprobe run``: the experiment end to end, collect → train → monitor → report, into one run folder."""
+"""``vlaprobe run``: the experiment end to end, collect → train → cognition → report, into one run folder."""
 
 from __future__ import annotations
 
@@ -76,6 +76,7 @@ def run(cfg: RunConfig) -> Path:
     check_run_suite(cfg)
     check_owned_folder(cfg.out, RUN_FOLDER)
     cfg = stage_configs(cfg)
+    assert cfg.train.out is not None and cfg.report.out is not None  # stage_configs set them
     check_probe_folder(cfg.train.out, "--out")
     check_owned_folder(cfg.report.out, REPORT_FOLDER, "--out")
     mark_folder(cfg.out, RUN_FOLDER.owner)
@@ -87,7 +88,7 @@ def run(cfg: RunConfig) -> Path:
     t1 = time.perf_counter()
     print(f"[2/4] train → {cfg.train.out}", flush=True)
     train_probes(cfg.train)
-    print(f"[3/4] monitor → {cfg.train.out}/monitor.json", flush=True)
+    print(f"[3/4] cognition → {cfg.train.out}/monitor.json", flush=True)
     # The cognition over the held-out episodes, on the truth and on the probes; the report adds its section.
     monitor(cfg.monitor)
     t2 = time.perf_counter()
@@ -97,13 +98,13 @@ def run(cfg: RunConfig) -> Path:
     # Written once every stage has succeeded: a rejected or failed run leaves the last good config in place.
     config_path = _save_config(cfg)
     print(
-        f"times: collect {t1 - t0:.0f} s, train + monitor {t2 - t1:.0f} s, report {t3 - t2:.0f} s; config: {config_path}"
+        f"times: collect {t1 - t0:.0f} s, train + cognition {t2 - t1:.0f} s, report {t3 - t2:.0f} s; config: {config_path}"
     )
     return page
 
 
 def report(cfg: ReportConfig) -> Path:
-    """``vlaprobe report``: the report page with the cognition monitor's section when the probe folder has one."""
+    """``vlaprobe report``: the report page with the offline cognition evaluation's section when the probe folder has one."""
     from vlaprobe.cognition.monitor import report_section
     from vlaprobe.reports.report import write_report
 

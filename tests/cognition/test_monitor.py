@@ -1,4 +1,4 @@
-"""`vlaprobe monitor` on a store written by the collection's writer and probes that read the labels back."""
+"""`vlaprobe cognition` on a store written by the collection's writer and probes that read the labels back."""
 
 from __future__ import annotations
 
@@ -145,7 +145,7 @@ def test_cli_prints_the_figures_as_json(
     store, probes = run
     assert (
         cli_main(
-            ["monitor", "--store", str(store), "--probes", str(probes), "--out", str(tmp_path), "--json"]
+            ["cognition", "--store", str(store), "--probes", str(probes), "--out", str(tmp_path), "--json"]
         )
         == 0
     )
@@ -191,11 +191,11 @@ def test_bad_input_is_a_one_line_error(
     run: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     store, probes = run
-    assert cli_main(["monitor", "--store", str(tmp_path / "none"), "--probes", str(probes)]) == 2
-    assert cli_main(["monitor", "--store", str(store), "--probes", str(tmp_path)]) == 2
+    assert cli_main(["cognition", "--store", str(tmp_path / "none"), "--probes", str(probes)]) == 2
+    assert cli_main(["cognition", "--store", str(store), "--probes", str(tmp_path)]) == 2
     bad = tmp_path / "bad.lp"
     bad.write_text("violation(x, A) :- lefty(A).\n")
-    assert cli_main(["monitor", "--store", str(store), "--probes", str(probes), "--rules", str(bad)]) == 2
+    assert cli_main(["cognition", "--store", str(store), "--probes", str(probes), "--rules", str(bad)]) == 2
     errors = capsys.readouterr().err.strip().splitlines()
     assert len(errors) == 3 and all(e.startswith("vlaprobe: error: ") for e in errors)
     assert f"{bad}:1:" in errors[2]

@@ -25,7 +25,7 @@ from vlaprobe.configs.serve import ServeConfig
 from vlaprobe.live.app import create_app
 from vlaprobe.live.serve import build_engine, limits_of, load_probes
 
-pytestmark = [pytest.mark.libero, pytest.mark.timeout(600)]
+pytestmark = [pytest.mark.libero, pytest.mark.timeout(600), pytest.mark.serial]  # the CLI starts in < 30 s
 MAX_STEPS = 220  # the expert needs ~100-200 steps; the paper allowed 220
 
 

@@ -1,4 +1,4 @@
-"""The real readout and cognition behind the server: store replays equal `vlaprobe monitor`, live uses them too."""
+"""The real readout and cognition behind the server: store replays equal `vlaprobe cognition`, live uses them too."""
 
 from __future__ import annotations
 

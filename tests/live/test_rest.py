@@ -5,6 +5,8 @@ from __future__ import annotations
 import asyncio
 import time
 
+import pytest
+
 from vlaprobe.live.rest import Busy, Reader
 
 
@@ -13,6 +15,7 @@ def work() -> float:
     return time.monotonic()
 
 
+@pytest.mark.serial  # timed
 def test_reads_are_serial_paced_while_live_and_bounded() -> None:
     live = [True]
     reader = Reader(None, None, live=lambda: live[0], duty=0.5, limit=2)

@@ -62,6 +62,7 @@ def real_app(run: Path, tmp: Path, **limits: Any) -> Any:
     return create_app(real_engine(cfg), Limits(image_hz=1000.0, **limits))
 
 
+@pytest.mark.serial  # timed: the stop within 1 s
 def test_stop_interrupts_a_slow_replay(fake_run: Path, tmp_path: Path) -> None:
     with local_client(real_app(fake_run, tmp_path)) as c, c.websocket_connect("/ws") as ws:
         ws.receive_text()

@@ -11,8 +11,9 @@ import pytest
 import torch
 from safetensors.torch import save_file
 
+from vlaprobe.configs.policy import PolicyConfig
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.policies import load_policy
+from vlaprobe.policies import make_policy
 from vlaprobe.policies.openvla import checkpoint
 from vlaprobe.policies.openvla.config import openvla_7b, to_official
 from vlaprobe.policies.openvla.model import OpenVLA
@@ -103,7 +104,7 @@ def _official_folder(folder: Path) -> tuple[OpenVLAPolicy, Path]:
 
 def test_official_layout_folder_loads(tmp_path):
     model, folder = _official_folder(tmp_path / "openvla-7b-finetuned-libero-spatial")
-    policy = load_policy(str(folder), device="cpu")
+    policy = make_policy(PolicyConfig(str(folder), device="cpu"))
     assert policy.model_id == "openvla-7b-finetuned-libero-spatial"
     assert policy.unnorm_key == "libero_spatial_no_noops"  # dataset_statistics.json wins, with the fallback
     assert policy.tokenizer.name.startswith("hf:")
@@ -129,28 +130,28 @@ def _one_line(exc: pytest.ExceptionInfo) -> str:
 
 def test_bad_folders_are_one_line_errors(tmp_path):
     with pytest.raises(VlaprobeError, match="not found") as err:
-        load_policy(str(tmp_path / "missing"), device="cpu")
+        make_policy(PolicyConfig(str(tmp_path / "missing"), device="cpu"))
     _one_line(err)
     with pytest.raises(VlaprobeError, match=r"no config\.json"):
-        load_policy(str(tmp_path), device="cpu")
+        make_policy(PolicyConfig(str(tmp_path), device="cpu"))
     (tmp_path / "config.json").write_text("{oops")
     with pytest.raises(VlaprobeError, match="cannot read") as err:
-        load_policy(str(tmp_path), device="cpu")
+        make_policy(PolicyConfig(str(tmp_path), device="cpu"))
     _one_line(err)
     (tmp_path / "config.json").write_text(json.dumps({"model_type": "llava"}))
     with pytest.raises(VlaprobeError, match="not an OpenVLA config"):
-        load_policy(str(tmp_path), device="cpu")
+        make_policy(PolicyConfig(str(tmp_path), device="cpu"))
     official = to_official(tiny_config(), {})
     (tmp_path / "config.json").write_text(json.dumps({**official, "vision_backbone_id": "siglip-vit-so400m"}))
     with pytest.raises(VlaprobeError, match="unsupported OpenVLA vision backbone"):
-        load_policy(str(tmp_path), device="cpu")
+        make_policy(PolicyConfig(str(tmp_path), device="cpu"))
 
 
 def test_broken_checkpoints_are_one_line_errors(tmp_path):
     _, folder = _official_folder(tmp_path / "ckpt")
     (folder / "model-00002-of-00002.safetensors").rename(folder / "elsewhere.safetensors")
     with pytest.raises(VlaprobeError, match="missing from") as err:
-        load_policy(str(folder), device="cpu")
+        make_policy(PolicyConfig(str(folder), device="cpu"))
     _one_line(err)
     (folder / "elsewhere.safetensors").rename(folder / "model-00002-of-00002.safetensors")
 
@@ -159,28 +160,28 @@ def test_broken_checkpoints_are_one_line_errors(tmp_path):
     config["text_config"]["hidden_size"] *= 2
     (folder / "config.json").write_text(json.dumps(config))
     with pytest.raises(VlaprobeError, match="does not belong to these weights") as err:
-        load_policy(str(folder), device="cpu")
+        make_policy(PolicyConfig(str(folder), device="cpu"))
     _one_line(err)
     config = json.loads(original)
     config["text_config"]["num_hidden_layers"] = 30
     (folder / "config.json").write_text(json.dumps(config))
     with pytest.raises(VlaprobeError, match="unexpected"):
-        load_policy(str(folder), device="cpu")
+        make_policy(PolicyConfig(str(folder), device="cpu"))
     (folder / "config.json").write_text(original)
 
     (folder / "tokenizer.json").unlink()
     with pytest.raises(VlaprobeError, match="tokenizer"):
-        load_policy(str(folder), device="cpu")
+        make_policy(PolicyConfig(str(folder), device="cpu"))
     _tokenizer_json(folder)
     with pytest.raises(VlaprobeError, match="libero_goal"):
-        load_policy(str(folder), device="cpu", unnorm_key="libero_goal")
+        make_policy(PolicyConfig(str(folder), device="cpu", unnorm_key="libero_goal"))
     with pytest.raises(VlaprobeError, match="pooling"):
-        load_policy(str(folder), pooling="max", device="cpu")  # type: ignore[arg-type]
+        make_policy(PolicyConfig(str(folder), pooling="max", device="cpu"))  # type: ignore[arg-type]
     if not torch.cuda.is_available():
         with pytest.raises(VlaprobeError, match="CUDA is not available"):
-            load_policy("tiny", device="cuda")
+            make_policy(PolicyConfig("tiny", device="cuda"))
     with pytest.raises(VlaprobeError, match="unknown device"):
-        load_policy("tiny", device="gpu0")
+        make_policy(PolicyConfig("tiny", device="gpu0"))
 
 
 def test_commands(tmp_path, capsys):

@@ -7,7 +7,7 @@ import numpy as np
 
 from vlaprobe.configs.policy import PolicyConfig
 from vlaprobe.configs.serve import ServeConfig
-from vlaprobe.policies import load_policy
+from vlaprobe.policies import make_policy
 from vlaprobe.policies.openvla.embedded import DEFAULT_MODEL, embedded_folder
 from vlaprobe.policies.openvla.tokenizer import ACTION_ID_RANGE
 
@@ -21,7 +21,7 @@ def test_the_default_observer_is_the_shipped_model() -> None:
 
 
 def test_shipped_weights_load_with_the_declared_shape_and_statistics() -> None:
-    policy = load_policy("tiny-libero", device="cpu")
+    policy = make_policy(PolicyConfig("tiny-libero", device="cpu"))
     cfg = policy.model.config
     assert policy.model_id == "tiny-libero"
     assert (policy.num_hidden_states, policy.hidden_size) == (33, 64)  # OpenVLA's 33 states
@@ -31,14 +31,16 @@ def test_shipped_weights_load_with_the_declared_shape_and_statistics() -> None:
     q01, q99 = np.array(stats["q01"]), np.array(stats["q99"])
     assert stats["mask"] == [True] * 6 + [False] and np.all(q01[:6] < q99[:6])
     assert all(p.dtype == policy.dtype for p in policy.model.parameters())  # float16 on disk, fp32 here
-    random = load_policy("tiny", device="cpu")
+    random = make_policy(PolicyConfig("tiny", device="cpu"))
     assert random.model_id == "tiny-openvla-seed0" and random.model.config.num_patches == 256
-    init = load_policy("tiny-libero-init", device="cpu")  # the control: the same network before training
+    init = make_policy(
+        PolicyConfig("tiny-libero-init", device="cpu")
+    )  # the control: the same network before training
     assert init.model.config == cfg and init.model_id == "tiny-openvla-p28-seed0"
 
 
 def test_shipped_model_produces_valid_actions() -> None:
-    policy = load_policy("tiny-libero", device="cpu")
+    policy = make_policy(PolicyConfig("tiny-libero", device="cpu"))
     rng = np.random.default_rng(0)
     for _ in range(2):
         frame = rng.integers(0, 255, (256, 256, 3), dtype=np.uint8)

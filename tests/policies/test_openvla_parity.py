@@ -133,13 +133,14 @@ PIECES = {
 
 def test_end_to_end_from_raw_libero_frame(reference, cases, tmp_path):
     """Raw agentview frame + instruction → LIBERO preprocessing → tokenizer.json → model → action, through
-    ``load_policy`` on an official-layout folder, equals the official pipeline's case 0."""
-    from vlaprobe.policies import load_policy
+    ``make_policy`` on an official-layout folder, equals the official pipeline's case 0."""
+    from vlaprobe.configs.policy import PolicyConfig
+    from vlaprobe.policies import make_policy
 
     for name in ("config.json", "model.safetensors", "tiny_dims.json"):
         shutil.copy(reference / name, tmp_path / name)
     _llama_like_tokenizer(tmp_path, PIECES)
-    policy = load_policy(str(tmp_path), pooling="last_prompt", device="cpu")
+    policy = make_policy(PolicyConfig(str(tmp_path), pooling="last_prompt", device="cpu"))
     assert policy.prompt_ids("Put both the alphabet soup and the tomato sauce in the basket")[0].tolist() == (
         cases[2]["input_ids"].tolist()
     )

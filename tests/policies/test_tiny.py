@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from vlaprobe.policies import POOLINGS, PolicyStep, VLAPolicy, load_policy
+from vlaprobe.configs.policy import PolicyConfig
+from vlaprobe.policies import POOLINGS, PolicyStep, VLAPolicy, make_policy
 from vlaprobe.policies.openvla.policy import OpenVLAPolicy
 from vlaprobe.policies.openvla.tiny import TINY_HIDDEN_SIZE, tiny_config, tiny_state_dict
 
@@ -107,7 +108,7 @@ def test_seeded_weights():
 def test_save_load_round_trip_is_exact(tiny, tmp_path):
     tiny.save_pretrained(tmp_path / "ckpt")
     assert sorted(p.name for p in (tmp_path / "ckpt").iterdir()) == ["config.json", "model.safetensors"]
-    loaded = load_policy(str(tmp_path / "ckpt"), pooling="action_tokens", device="cpu")
+    loaded = make_policy(PolicyConfig(str(tmp_path / "ckpt"), pooling="action_tokens", device="cpu"))
     assert loaded.model_id == tiny.model_id
     ours, theirs = tiny.model.state_dict(), loaded.model.state_dict()
     assert ours.keys() == theirs.keys() and all(torch.equal(ours[k], theirs[k]) for k in ours)

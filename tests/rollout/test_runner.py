@@ -6,6 +6,8 @@ import threading
 import time
 from types import SimpleNamespace
 
+import pytest
+
 from vlaprobe.rollout import EnvCache, EpisodeControl, paced
 
 
@@ -27,6 +29,7 @@ def test_the_cache_keeps_one_environment_and_rebuilds_on_a_new_task() -> None:
     assert second.closed and cache.env is None
 
 
+@pytest.mark.serial  # timed
 def test_paced_obeys_stop_and_pause_between_records() -> None:
     control = EpisodeControl()
     seen = []
@@ -43,6 +46,7 @@ def test_paced_obeys_stop_and_pause_between_records() -> None:
     assert time.monotonic() - t0 >= 0.15
 
 
+@pytest.mark.serial  # timed
 def test_paced_keeps_the_rate() -> None:
     t0 = time.monotonic()
     assert list(paced(range(4), None, hz=20.0)) == [0, 1, 2, 3]  # type: ignore[arg-type]

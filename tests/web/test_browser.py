@@ -28,6 +28,7 @@ OUT = REPO / "test-output" / "browser"
 
 pytestmark = [
     pytest.mark.libero,
+    pytest.mark.serial,  # a browser, a server and the simulator: timed waits
     pytest.mark.timeout(900),
     pytest.mark.skipif(
         not CHROMIUM.exists(), reason="needs Debian's chromium at /usr/bin/chromium (apt install chromium)"
@@ -42,12 +43,13 @@ def make_tiny_probes(folder: Path) -> None:
     every seventh atom is left unprobed (held at a majority value), as training does for near-constant atoms.
     """
     from vlaprobe.configs.env import EnvConfig
+    from vlaprobe.configs.policy import PolicyConfig
     from vlaprobe.envs import make_env
-    from vlaprobe.policies import load_policy
+    from vlaprobe.policies import make_policy
     from vlaprobe.probes.probeset import ProbeSet
     from vlaprobe.symbols.vocabulary import build_vocabulary
 
-    policy = load_policy("tiny", device="cpu")
+    policy = make_policy(PolicyConfig("tiny", device="cpu"))
     env = make_env(0, EnvConfig())
     try:
         vocab = build_vocabulary(env.scene)

@@ -48,9 +48,11 @@ class BeliefStore:
     def reset(self) -> None:
         n = len(self.atoms)
         self.t = -1
-        self.values = np.zeros(n, dtype=bool)
+        self.values: np.ndarray = np.zeros(n, dtype=bool)
         """Current beliefs, one per atom."""
-        self._run = np.zeros(n, dtype=np.int32)  # consecutive steps the input has disagreed with the belief
+        self._run: np.ndarray = np.zeros(
+            n, dtype=np.int32
+        )  # consecutive steps the input has disagreed with the belief
         self._start = np.full(n, -1, dtype=np.int64)  # first step of the current true interval, -1 if false
         self._changed = np.full(n, -1, dtype=np.int64)  # step of the last change, -1 if never
         self._closed: list[list[tuple[int, int]]] = [[] for _ in range(n)]

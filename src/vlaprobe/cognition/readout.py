@@ -21,11 +21,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.symbols import HEADS
 
 if TYPE_CHECKING:
     from vlaprobe.probes.probeset import ProbeSet
-
-HEADS = ("object", "action")
 
 
 @dataclass(frozen=True)

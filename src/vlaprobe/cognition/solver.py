@@ -198,10 +198,11 @@ class RuleEngine:
         if err is not None:
             raise err
         lookup = self._ctl.symbolic_atoms
-        self._lit = {"now": [lookup[s].literal for s in self._now]}
+        self._lit = {"now": [_literal(lookup, s) for s in self._now]}
         for op in TEMPORAL:  # 0: not tracked (never assigned)
             self._lit[op] = [
-                lookup[s].literal if on else 0 for s, on in zip(self._ops[op], self._tracked[op], strict=True)
+                _literal(lookup, s) if on else 0
+                for s, on in zip(self._ops[op], self._tracked[op], strict=True)
             ]
         # (program literals of the externals: assigning by literal skips a symbol lookup per call)
         self.messages: dict[str, str] = {}
@@ -325,3 +326,11 @@ class RuleEngine:
             RuleHit(rule, key, tuple(dict.fromkeys(atoms + sorted(extra.get((rule, key), [])))))
             for (rule, key), atoms in sorted(found.items())
         ]
+
+
+def _literal(lookup: clingo.SymbolicAtoms, symbol: clingo.Symbol) -> int:
+    """The solver literal of a grounded atom (every atom looked up here was added as an external)."""
+    atom = lookup[symbol]
+    if atom is None:
+        raise VlaprobeError(f"the rules' atom {symbol} was not grounded; report this as a bug")
+    return atom.literal

@@ -95,7 +95,7 @@ class EpisodeSteps:
         return cls(
             **{name: np.asarray(arrays[name]) for name in STEP_DTYPES},
             world=world_states(arrays),
-            **{k: np.asarray(arrays[k]) if k in arrays else None for k in OPTIONAL_STEP_ARRAYS},
+            **{k: np.asarray(arrays[k]) if k in arrays else None for k in OPTIONAL_STEP_ARRAYS},  # type: ignore[arg-type]
         )
 
 
@@ -115,7 +115,7 @@ class StepRows:
 
     def steps(self, codes: Sequence[int] | None = None) -> EpisodeSteps:
         """The columns of the rows added (``codes``: the perturbation code of each row, if any)."""
-        cols = {
+        cols: dict[str, np.ndarray] = {
             name: np.asarray(np.stack(self._cols[name]), dtype=dtype) for name, dtype in STEP_DTYPES.items()
         }
         cols["hidden"] = np.ascontiguousarray(np.moveaxis(cols["hidden"], 0, 1))  # (layers, T, ...)
@@ -237,7 +237,7 @@ def world_states(arrays: Mapping[str, np.ndarray]) -> list[WorldState]:
     length = len(next(iter(columns.values())))
     # A (steps,) column holds a scalar field (fovy, gripper command); array fields are at least (steps, k).
     return [
-        WorldState(**{name: float(c[t]) if c.ndim == 1 else c[t] for name, c in columns.items()})
+        WorldState(**{name: float(c[t]) if c.ndim == 1 else c[t] for name, c in columns.items()})  # type: ignore[arg-type]
         for t in range(length)
     ]
 

@@ -197,7 +197,9 @@ class ProcessExecutor:
     def wait(self) -> list[tuple[Unit, EpisodeResult]]:
         busy = dict(self._busy)
         index, result = self._receive()
-        return [(busy[index], result)]
+        unit = busy[index]
+        assert unit is not None  # describe() is answered by _receive() itself
+        return [(unit, result)]
 
     def close(self) -> None:
         for p in self._procs:  # also ends speculative episodes that are no longer needed
@@ -211,7 +213,8 @@ class _Actor:
     """A Worker living in a Ray actor (built lazily, like in worker processes)."""
 
     def __init__(self, make_worker: MakeWorker, cfg: CollectConfig) -> None:
-        self._make, self._cfg, self._worker = make_worker, cfg, None
+        self._make, self._cfg = make_worker, cfg
+        self._worker: EpisodeRunner | None = None
 
     def call(self, method: str, *args: Any) -> Any:
         if self._worker is None:
@@ -257,12 +260,12 @@ class RayExecutor:
             raise _unwrap_ray_error(exc) from None
 
     def describe(self) -> RunDescription:
-        return self._get(self._actors[0].call.remote("describe"))
+        return self._get(self._actors[0].call.remote("describe"))  # type: ignore[union-attr]
 
     def submit(self, unit: Unit, seed: int) -> None:
         i = self._idle.pop()
         self._simulators.ran(i, unit)
-        self._pending[self._actors[i].call.remote("run", unit, seed)] = (unit, i)
+        self._pending[self._actors[i].call.remote("run", unit, seed)] = (unit, i)  # type: ignore[union-attr]
 
     def affinity(self) -> Affinity:
         return self._simulators.affinity(self._idle[-1] if self._idle else None)
@@ -278,7 +281,7 @@ class RayExecutor:
 
     def close(self) -> None:
         for actor in self._actors:
-            self._ray.kill(actor)
+            self._ray.kill(actor)  # type: ignore[arg-type]
         if self._owns_ray:
             self._ray.shutdown()
 

@@ -16,7 +16,7 @@ import sys
 import time
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -28,6 +28,7 @@ from vlaprobe.files import JsonObject
 from vlaprobe.policies.base import VLAPolicy
 
 
+@runtime_checkable
 class Observer(Protocol):
     """A model that computes hidden states of stored images in batches (``OpenVLAPolicy.observe``)."""
 
@@ -73,7 +74,7 @@ def reobserve(source: str | Path, out: str | Path, cfg: PolicyConfig, batch: int
     if Path(out).resolve() == store.path.resolve():
         raise VlaprobeError(f"reobserve writes a new store; choose an --out other than the source {source}")
     policy = make_policy(cfg)
-    if not hasattr(policy, "observe"):
+    if not isinstance(policy, Observer):
         raise VlaprobeError(f"model {cfg.model!r} cannot re-observe stored images; use an OpenVLA model")
     added: list[str] = []
     start = time.perf_counter()

@@ -154,6 +154,26 @@ def list_infos(folder: Path) -> list[EpisodeInfo]:
     return sorted(infos, key=lambda e: e.order)
 
 
+def array_at(group: zarr.Group, path: str) -> zarr.Array:
+    """The array at ``path`` under ``group`` (a group there means a damaged store)."""
+    node = group[path]
+    if not isinstance(node, zarr.Array):
+        raise VlaprobeError(
+            f"{path} in the store is a group, not an array; the store is damaged: re-collect it"
+        )
+    return node
+
+
+def group_at(group: zarr.Group, path: str) -> zarr.Group:
+    """The group at ``path`` under ``group`` (an array there means a damaged store)."""
+    node = group[path]
+    if not isinstance(node, zarr.Group):
+        raise VlaprobeError(
+            f"{path} in the store is an array, not a group; the store is damaged: re-collect it"
+        )
+    return node
+
+
 class StoredEpisode(Mapping[str, np.ndarray]):
     """One stored episode: its arrays by name (``"hidden"``, ``"image"``, ``"world/pos"``...), each read on first
     access, and the typed schema (:attr:`info`, :attr:`attributes`, :meth:`steps`, :meth:`records`)."""
@@ -170,7 +190,7 @@ class StoredEpisode(Mapping[str, np.ndarray]):
             if name not in self._names:
                 raise KeyError(name)
             try:
-                self._cache[name] = np.asarray(self._group[name][...])
+                self._cache[name] = np.asarray(array_at(self._group, name)[...])
             except Exception as exc:  # a truncated chunk or bad array metadata: zarr's errors vary
                 raise VlaprobeError(
                     f"episode {self._group.path} is damaged ({name}: {type(exc).__name__}); see `vlaprobe info "
@@ -253,7 +273,7 @@ class ActivationStore:
 
     def _array(self, key: str, name: str) -> zarr.Array:
         if (key, name) not in self._arrays:
-            self._arrays[key, name] = self._root[f"episodes/{key}/{name}"]
+            self._arrays[key, name] = array_at(self._root, f"episodes/{key}/{name}")
         return self._arrays[key, name]
 
     def _concat(
@@ -314,7 +334,7 @@ class ActivationStore:
     def episode(self, key: str) -> StoredEpisode:
         """One episode: its arrays (each read when first accessed) and its typed schema."""
         self._resolve([key])
-        return StoredEpisode(self._root[f"episodes/{key}"])
+        return StoredEpisode(group_at(self._root, f"episodes/{key}"))
 
     def iter_episodes(
         self, success_only: bool = False, episodes: Sequence[str] | None = None
@@ -323,7 +343,7 @@ class ActivationStore:
         infos = self._resolve(episodes) if episodes is not None else self.episodes(success_only)
         for info in infos:
             if info.success or not success_only:
-                yield info, StoredEpisode(self._root[f"episodes/{info.key}"])
+                yield info, StoredEpisode(group_at(self._root, f"episodes/{info.key}"))
 
     def failures(self) -> list[EpisodeInfo]:
         """Tried units whose failed episode was not kept (their markers)."""

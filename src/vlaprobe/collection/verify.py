@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vlaprobe.collection.store import ATOM_ARRAYS, read_meta
+from vlaprobe.collection.store import ATOM_ARRAYS, array_at, read_meta
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject
 
@@ -144,7 +144,7 @@ def _read_all(path: Path, key: str, names: set[str]) -> str | None:
     root = zarr.open_group(zarr.storage.LocalStore(path, read_only=True), mode="r")
     for name in sorted(names):
         try:
-            np.asarray(root[f"episodes/{key}/{name}"][...])
+            np.asarray(array_at(root, f"episodes/{key}/{name}")[...])
         except Exception as exc:  # zstd/blosc/JSON errors of a damaged file: any of them means damage
             return f"{name}: cannot be read ({type(exc).__name__}: {str(exc)[:80]})"
     return None
@@ -210,7 +210,7 @@ def repair_hint(path: str | Path, damage: list[Damage]) -> str:
 
 def require_intact(path: str | Path, read: bool = False, keys: Iterable[str] | None = None) -> None:
     """Raise a one-line :class:`VlaprobeError` naming the damaged episodes and the repair, if any (``read``,
-    ``keys``: as :func:`check_store`; `monitor` and `serve --store` decode the episodes they read)."""
+    ``keys``: as :func:`check_store`; `cognition` and `serve --store` decode the episodes they read)."""
     damage = check_store(path, read=read, keys=keys)
     if damage:
         raise VlaprobeError(f"{describe(path, damage)}; {repair_hint(path, damage)}")

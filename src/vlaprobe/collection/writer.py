@@ -255,9 +255,9 @@ class StoreWriter:
                 leaf,
                 data=np.ascontiguousarray(a),
                 chunks=_chunks(name, a.shape, a.dtype.itemsize),
-                chunk_key_encoding=CHUNK_KEYS,
+                chunk_key_encoding=CHUNK_KEYS,  # type: ignore[arg-type]
                 attributes=extra,
-                config={"write_empty_chunks": True},  # a chunk file per chunk: a missing one is damage
+                config={"write_empty_chunks": True},  # type: ignore[arg-type]  # a chunk file per chunk: a missing one is damage
             )
         _fsync_tree(tmp)
         return StagedEpisode(info, tmp)

@@ -10,17 +10,20 @@ from __future__ import annotations
 import dataclasses
 import typing
 from pathlib import Path
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import dacite
 
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import Json, JsonObject
 
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
 C = TypeVar("C")
 
 
-def config_to_dict(cfg: object) -> JsonObject:
+def config_to_dict(cfg: DataclassInstance) -> JsonObject:
     """A JSON-ready dict of a config dataclass (nested dataclasses, paths as strings, tuples as lists)."""
     out: JsonObject = {}
     for f in dataclasses.fields(cfg):

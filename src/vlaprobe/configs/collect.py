@@ -11,6 +11,9 @@ import tyro
 from vlaprobe.configs.env import EnvConfig
 from vlaprobe.configs.policy import PolicyConfig
 
+DriverName = Literal["expert", "policy", "dagger"]
+"""Who acts in an episode: the scripted expert, the model, or the model labelled by the expert (DAgger)."""
+
 
 @dataclass
 class CollectConfig:
@@ -18,7 +21,7 @@ class CollectConfig:
 
     out: Path = Path("runs/default/activations")
     """Activation store folder. Created if missing; an existing store made with the same settings is resumed."""
-    driver: Literal["expert", "policy", "dagger"] = "expert"
+    driver: DriverName = "expert"
     """Who acts: the privileged scripted expert (the model only observes, its predicted action is recorded next
     to the executed one), the model itself (the paper's setting), or "dagger": the model acts and the scripted
     expert labels every row with its own action (``expert_action``, what `vlaprobe finetune` then learns from;

@@ -1,4 +1,4 @@
-"""Configuration of the cognition (belief store, rules, subgoals) and of `vlaprobe monitor`."""
+"""Configuration of the cognition (belief store, rules, subgoals) and of `vlaprobe cognition` (the offline cognition evaluation)."""
 
 from __future__ import annotations
 

@@ -4,7 +4,36 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Literal, get_args
+
+from vlaprobe.errors import VlaprobeError
+
+Pooling = Literal["last_prompt", "mean_text", "mean_all", "action_tokens"]
+"""How each layer's states over the sequence become the recorded vector:
+
+- ``last_prompt``: the state at the last prompt position (the empty token 29871 OpenVLA appends after
+  "Out:"), i.e. position T−1 of the prompt pass. It is the state whose logits choose the first action token:
+  the last point where the model has read the whole image and instruction and has emitted nothing yet.
+  What the paper probed.
+- ``mean_text``: the mean over the prompt's text positions (<s> and every prompt token, not the patches).
+- ``mean_all``: the mean over all T prompt positions (<s>, 256 patches, prompt tokens).
+- ``action_tokens``: for each of the 7 action tokens, the state at the position whose logits choose it
+  (T−1 for token 0, then the decode positions T … T+5 where tokens 0 … 5 are fed back): (L, 7, H).
+"""
+
+POOLINGS: tuple[Pooling, ...] = get_args(Pooling)
+
+
+def pooling_of(name: str) -> Pooling:
+    """``name`` (e.g. read from a probe folder) as a :data:`Pooling`; one line naming the known ones if unknown."""
+    for pooling in POOLINGS:
+        if pooling == name:
+            return pooling
+    raise VlaprobeError(f"unknown pooling {name!r}; use one of {list(POOLINGS)}")
+
+
+Preprocessing = Literal["numpy", "tf"]
+"""LIBERO image pipeline: "numpy" (bit-exact re-implementation) or "tf" (TensorFlow, extra `tf`)."""
 
 
 @dataclass
@@ -16,7 +45,7 @@ class PolicyConfig:
     "tiny-libero-init" (its network before training: seeded random weights, the control observer), "tiny" (the
     random tiny model with OpenVLA's 256 patches), or an OpenVLA checkpoint folder (official HF layout:
     config.json, *.safetensors, dataset_statistics.json, tokenizer.json)."""
-    pooling: Literal["last_prompt", "mean_text", "mean_all", "action_tokens"] = "last_prompt"
+    pooling: Pooling = "last_prompt"
     """Hidden state per layer: the last prompt position (the paper's choice), the mean over text or all
     prompt positions, or the 7 positions that choose the action tokens."""
     device: str = "auto"
@@ -27,7 +56,7 @@ class PolicyConfig:
     """Action statistics to un-normalise with; "<key>_no_noops" is tried next, as OpenVLA's LIBERO eval does."""
     center_crop: bool = True
     """OpenVLA's 0.9-area centre crop (the LIBERO fine-tunes were trained with random crops)."""
-    preprocessing: Literal["numpy", "tf"] = "numpy"
+    preprocessing: Preprocessing = "numpy"
     """LIBERO image pipeline: "numpy" (bit-exact re-implementation) or "tf" (TensorFlow, extra `tf`)."""
 
 

@@ -1,4 +1,4 @@
-"""Config of ``vlaprobe run``: the whole experiment, collect → train → monitor → report, in one folder."""
+"""Config of ``vlaprobe run``: the whole experiment, collect → train → cognition → report, in one folder."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ def _default_collect() -> CollectConfig:
 @dataclass
 class RunConfig:
     """Collect hidden states and atoms, train the per-layer probes, run the cognition over the held-out
-    episodes (``vlaprobe monitor``), and write the report.
+    episodes (the offline cognition evaluation, ``vlaprobe cognition``), and write the report.
 
     The embedded default runs on a CPU with no downloads: the scripted expert drives LIBERO-spatial and the
     tiny OpenVLA-shaped model observes. ``--model /path/to/openvla-7b`` (with
@@ -41,7 +41,7 @@ class RunConfig:
     train: TrainConfig = field(default_factory=TrainConfig)
     """Probe training and evaluation settings."""
     monitor: MonitorConfig = field(default_factory=MonitorConfig)
-    """Cognition settings (extra --monitor.rules files, debounce...) for the monitor over the test episodes."""
+    """Cognition settings (extra --monitor.rules files, debounce...) for the offline cognition evaluation over the test episodes."""
     report: ReportConfig = field(default_factory=ReportConfig)
     """Report settings."""
     control_model: str = "tiny-libero-init"

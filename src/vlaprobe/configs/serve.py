@@ -9,6 +9,9 @@ from typing import Literal
 from vlaprobe.configs.env import EnvConfig
 from vlaprobe.configs.monitor import CognitionConfig
 
+LiveDriver = Literal["expert", "policy"]
+"""Who acts in a live episode: the scripted expert or the VLA itself (DAgger is for collection only)."""
+
 
 @dataclass
 class ServeConfig:
@@ -43,7 +46,7 @@ class ServeConfig:
     recordings: Path | None = None
     """Folder of recorded live episodes (one folder per episode). Default: ``live`` beside the probe folder.
     Recordings are private to the server's user: folders 700, files 600."""
-    driver: Literal["expert", "policy"] = "expert"
+    driver: LiveDriver = "expert"
     """Driver of episodes started without one (the paper's client): the scripted expert or the VLA itself."""
     object_layer: int | None = None
     """Hidden state the object probe reads; default: its best layer."""
@@ -59,6 +62,6 @@ class ServeConfig:
     seed: int = 0
     """Seed of random init states and of the tiny model's weights."""
     cognition: CognitionConfig = field(default_factory=CognitionConfig)
-    """The belief store, rules (``--cognition.rules FILE`` adds yours) and subgoal tracking, as in monitor."""
+    """The belief store, rules (``--cognition.rules FILE`` adds yours) and subgoal tracking, as in `vlaprobe cognition`."""
     env: EnvConfig = field(default_factory=EnvConfig)
     """The simulator (assets, image size, settle steps, ``max_steps`` = the default step budget)."""

@@ -8,6 +8,8 @@ from typing import Annotated, Literal
 
 import tyro
 
+from vlaprobe.symbols import HEADS
+
 Metric = Literal["accuracy", "balanced_accuracy", "f1", "auprc"]
 
 
@@ -69,7 +71,7 @@ class TrainConfig:
     """Activation store written by ``vlaprobe collect``."""
     out: Path | None = None
     """Output folder for probes and evaluation. Default: a ``probes`` folder next to the store."""
-    heads: tuple[str, ...] = ("object", "action")
+    heads: tuple[str, ...] = HEADS
     """Label heads to probe (the store's ``atom_names`` keys)."""
     layers: tuple[int, ...] = ()
     """Hidden-state indices to probe (0 = embeddings). Empty: all of them."""

@@ -284,7 +284,7 @@ class ScriptedExpert:
         opening = float(state.gripper_qpos[0] - state.gripper_qpos[1])
         lo, hi = state.aabb_lo[self._pick], state.aabb_hi[self._pick]
         outside = np.linalg.norm(np.maximum(np.maximum(lo - pos, pos - hi), 0.0))
-        return opening > MIN_OPENING and outside < LOST_DISTANCE
+        return bool(opening > MIN_OPENING and outside < LOST_DISTANCE)
 
     def act(self) -> np.ndarray:
         """The (7,) action for the current simulator state."""

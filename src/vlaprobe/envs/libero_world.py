@@ -47,7 +47,7 @@ def read_scene(e: Any) -> Scene:
     parents: dict[str, str] = {}
     for name, site in e.object_sites_dict.items():
         parent = getattr(site, "parent_name", None)
-        if parent not in fixtures:
+        if not isinstance(parent, str) or parent not in fixtures:
             continue  # table zones are placement aids, not objects
         parents[name] = parent
         if site.joints:

@@ -133,7 +133,7 @@ def _libero_own_assets(libero_root: ModuleType) -> Path:
     import io
     import sys
 
-    local = Path(libero_root.__file__).parent / "assets"
+    local = Path(str(libero_root.__file__)).parent / "assets"
     if not local.is_dir():
         print(
             f"vlaprobe: no LIBERO assets in the libero package; downloading them ({ASSETS_ENV} names a local copy)",

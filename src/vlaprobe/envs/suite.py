@@ -7,6 +7,7 @@ import json
 from vlaprobe.configs.suite import AtomsConfig, TasksConfig
 from vlaprobe.envs import make_env
 from vlaprobe.envs.libero import suite_tasks
+from vlaprobe.symbols import HEADS
 
 
 def tasks(cfg: TasksConfig) -> int:
@@ -44,7 +45,7 @@ def atoms(cfg: AtomsConfig) -> int:
         print(json.dumps(result))
         return 0
     print(f"task {result['task']} init {result['init']}: {result['instruction']}")
-    for head in ("object", "action"):
+    for head in HEADS:
         values: dict[str, int] = result[head]  # type: ignore[assignment]
         shown = values if cfg.all else {k: v for k, v in values.items() if v}
         print(f"{head} state ({sum(values.values())} of {len(values)} atoms true):")

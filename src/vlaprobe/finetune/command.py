@@ -201,7 +201,7 @@ def finetune(cfg: FinetuneConfig) -> int:
         **info,
         "finished": finished,
         "state": asdict(trainer.state),
-        "last": (trainer.records or [None])[-1],
+        "last": trainer.records[-1] if trainer.records else None,
     }
     write_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     where = out / CHECKPOINT

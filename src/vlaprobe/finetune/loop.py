@@ -129,7 +129,7 @@ class Trainer:
             self.cfg.batch_size,
             self.cfg.bf16,
         )
-        record = {
+        record: JsonObject = {
             "step": s.step,
             "epoch": round(s.step / self.schedule.steps_per_epoch, 4),
             "lr": lr_at(max(0, s.step - 1), self.schedule.total, self.cfg),

@@ -18,9 +18,8 @@ from vlaprobe.cognition.core import CognitionStep, Violation
 from vlaprobe.cognition.subgoals import Event, SubgoalState
 from vlaprobe.live import protocol as P
 from vlaprobe.rollout import StepRecord, StepTimings, SuccessTracker
-from vlaprobe.symbols import Goal
+from vlaprobe.symbols import HEADS, Goal
 
-HEADS = ("object", "action")
 STORE_PREFIX = "store-"
 """Ids of a store's episodes are ``store-<key>`` (``StoreEpisodes.PREFIX``)."""
 
@@ -51,7 +50,8 @@ class Readout(Protocol):
 class EpisodeCognition(Protocol):
     """One episode's cognition (``vlaprobe.cognition.Cognition``, as ``live.serve.DiarcCognition`` spells it)."""
 
-    subgoals: Sequence[SubgoalState]
+    @property
+    def subgoals(self) -> Sequence[SubgoalState]: ...
 
     def step(self, object_values: np.ndarray, action_values: np.ndarray) -> CognitionStep: ...
 
@@ -104,7 +104,7 @@ def _events(items: Sequence[Event]) -> list[P.Event]:
 
 
 def _subgoals(items: Sequence[SubgoalState]) -> list[P.SubgoalState]:
-    return [P.SubgoalState(index=int(g.index), name=str(g.name), status=str(g.status)) for g in items]
+    return [P.SubgoalState(index=int(g.index), name=str(g.name), status=g.status) for g in items]
 
 
 def status_line(t: int, success_step: int | None, last: bool) -> str:

@@ -13,8 +13,9 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
 
+from vlaprobe.configs.serve import LiveDriver
+
 SCHEMA_FILE = Path(__file__).with_name("protocol.schema.json")
-Driver = Literal["expert", "policy"]
 
 
 class _Model(BaseModel):
@@ -149,8 +150,8 @@ class Hello(_Model):
     probes: ProbeInfo
     image_hz: float
     num_init_states: int
-    drivers: list[Driver]
-    default_driver: Driver
+    drivers: list[LiveDriver]
+    default_driver: LiveDriver
     running: Running | None
 
 
@@ -247,7 +248,7 @@ class StartCommand(_Model):
     task: int | str
     """Task index or its instruction (trimmed, any case)."""
     init: int | Literal["random"] = "random"
-    driver: Driver = "expert"
+    driver: LiveDriver = "expert"
     max_steps: int | None = Field(default=None, ge=1, le=10_000)
     """Step budget; null: the server's (--env.max-steps). LIBERO runs at most 1000 steps per episode including
     the settling steps (990 with the default 10): a larger budget is refused with an error."""

@@ -26,12 +26,12 @@ from vlaprobe.envs.checks import check_inits
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.live import protocol as P
 from vlaprobe.live.app import Engine, Limits, create_app
-from vlaprobe.live.pipeline import HEADS, EpisodeSpec, MakeCognition, Reading, StepBuilder
+from vlaprobe.live.pipeline import EpisodeSpec, MakeCognition, Reading, StepBuilder
 from vlaprobe.live.replay import StoreReplays
 from vlaprobe.live.sources import Simulator, StoreEpisodes
 from vlaprobe.policies.base import VLAPolicy
 from vlaprobe.rollout.runner import MakeDriver, default_threads
-from vlaprobe.symbols import Goal
+from vlaprobe.symbols import HEADS, Goal
 
 if TYPE_CHECKING:
     from vlaprobe.cognition import Cognition, CognitionStep
@@ -39,7 +39,7 @@ if TYPE_CHECKING:
 
 
 class ProbeReading:
-    """The probes' readout (``vlaprobe.cognition.readout``, shared with ``vlaprobe monitor``) as a Readout."""
+    """The probes' readout (``vlaprobe.cognition.readout``, shared with ``vlaprobe cognition``) as a Readout."""
 
     def __init__(self, probes: ProbeSet, layers: dict[str, int] | None = None) -> None:
         from vlaprobe.cognition.readout import ProbeReadout
@@ -71,7 +71,7 @@ class DiarcCognition:
 
 def cognition_factory(config: CognitionConfig | None = None) -> MakeCognition:
     """Per episode: a fresh :class:`vlaprobe.cognition.Cognition` over the episode's atoms and goal, built as
-    ``vlaprobe monitor`` builds it (predictions: with the probes' ``probed`` mask; truth: without)."""
+    ``vlaprobe cognition`` builds it (predictions: with the probes' ``probed`` mask; truth: without)."""
     from vlaprobe.cognition import Cognition
 
     def make(atoms: dict[str, list[str]], goal: Goal, probed: dict[str, np.ndarray] | None) -> DiarcCognition:
@@ -150,12 +150,14 @@ def build_engine(
     if policy is None:
         import torch
 
-        from vlaprobe.configs.policy import PolicyConfig
+        from vlaprobe.configs.policy import PolicyConfig, pooling_of
         from vlaprobe.policies import make_policy
 
         torch.set_num_threads(cfg.threads or default_threads(1))
         policy = make_policy(
-            PolicyConfig(model=cfg.model, pooling=probes.pooling, device=cfg.device, seed=cfg.seed)
+            PolicyConfig(
+                model=cfg.model, pooling=pooling_of(probes.pooling), device=cfg.device, seed=cfg.seed
+            )
         )
     probes.check(model_id=policy.model_id, pooling=policy.pooling)
     if make_env is None or tasks is None:

@@ -17,13 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
+from vlaprobe.configs.collect import DriverName
 from vlaprobe.envs.base import TaskEnv
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.live import protocol as P
 from vlaprobe.live.pipeline import STORE_PREFIX, EpisodeSpec
 from vlaprobe.policies.base import VLAPolicy
 from vlaprobe.rollout import EnvCache, EpisodeControl, EpisodeRunner, StepRecord, make_driver, paced
-from vlaprobe.rollout.drivers import DriverName
 from vlaprobe.rollout.runner import MakeDriver
 
 MakeEnv = Callable[[int], TaskEnv]

@@ -7,26 +7,12 @@ This module stays light (numpy only) and knows no implementation: ``vlaprobe.pol
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from vlaprobe.configs.policy import Pooling
 from vlaprobe.files import JsonObject
-
-Pooling = Literal["last_prompt", "mean_text", "mean_all", "action_tokens"]
-"""How each layer's states over the sequence become the recorded vector:
-
-- ``last_prompt``: the state at the last prompt position (the empty token 29871 OpenVLA appends after
-  "Out:"), i.e. position T−1 of the prompt pass. It is the state whose logits choose the first action token:
-  the last point where the model has read the whole image and instruction and has emitted nothing yet.
-  What the paper probed.
-- ``mean_text``: the mean over the prompt's text positions (<s> and every prompt token, not the patches).
-- ``mean_all``: the mean over all T prompt positions (<s>, 256 patches, prompt tokens).
-- ``action_tokens``: for each of the 7 action tokens, the state at the position whose logits choose it
-  (T−1 for token 0, then the decode positions T … T+5 where tokens 0 … 5 are fed back): (L, 7, H).
-"""
-
-POOLINGS: tuple[Pooling, ...] = ("last_prompt", "mean_text", "mean_all", "action_tokens")
 
 
 @dataclass

@@ -6,10 +6,8 @@ models are imported only when it is called.
 
 from __future__ import annotations
 
-from typing import Literal
-
 from vlaprobe.configs.policy import PolicyConfig
-from vlaprobe.policies.base import Pooling, VLAPolicy
+from vlaprobe.policies.base import VLAPolicy
 
 
 def make_policy(cfg: PolicyConfig) -> VLAPolicy:
@@ -31,28 +29,4 @@ def make_policy(cfg: PolicyConfig) -> VLAPolicy:
         unnorm_key=cfg.unnorm_key,
         center_crop=cfg.center_crop,
         preprocessing=cfg.preprocessing,
-    )
-
-
-def load_policy(
-    model: str,
-    pooling: Pooling = "last_prompt",
-    device: str = "auto",
-    seed: int = 0,
-    *,
-    unnorm_key: str = "libero_spatial",
-    center_crop: bool = True,
-    preprocessing: Literal["numpy", "tf"] = "numpy",
-) -> VLAPolicy:
-    """:func:`make_policy` with the config's fields as arguments (for scripts and notebooks)."""
-    return make_policy(
-        PolicyConfig(
-            model=model,
-            pooling=pooling,
-            device=device,
-            seed=seed,
-            unnorm_key=unnorm_key,
-            center_crop=center_crop,
-            preprocessing=preprocessing,
-        )
     )

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.symbols.vocabulary import ACTION_PREDICATES, OBJECT_PREDICATES
+from vlaprobe.symbols.vocabulary import ACTION_PREDICATES, HEADS, OBJECT_PREDICATES
 from vlaprobe.symbols.vocabulary import predicate_of as predicate
 
 # The paper's figure order of predicates, and an atom's predicate, are the vocabulary's.
@@ -77,7 +77,7 @@ class ProbeData:
 
 def load_store(
     path: str | Path,
-    heads: Sequence[str] = ("object", "action"),
+    heads: Sequence[str] = HEADS,
     layers: Sequence[int] = (),
     success_only: bool = False,
 ) -> ProbeData:

@@ -263,7 +263,7 @@ def evaluate_head(
         best=BestLayer(0, 0, "", None, None, None, ""),
         probe=probe,
         baseline={m: _summary(b_point[m], b_res[m], groups) for m in METRICS},
-        task_baseline={m: _summary(*[r[m] for r in base["task"]], groups) for m in METRICS},
+        task_baseline={m: _summary(base["task"][0][m], base["task"][1][m], groups) for m in METRICS},
         task_time_baseline={m: _summary(tt_point[m], tt_res[m], groups) for m in METRICS},
         selectivity_task_time={
             m: _summary(point[m] - tt_point[m], res[m] - tt_res[m], groups) for m in COUNT_METRICS

@@ -321,6 +321,6 @@ def fit_logistic(
     return weights, biases, conv
 
 
-def l2_of_c(c: np.ndarray, rows: np.ndarray | float) -> np.ndarray:
+def l2_of_c(c: np.ndarray | float, rows: np.ndarray | float) -> np.ndarray:
     """Our penalty ``l2`` for scikit-learn's inverse strength ``C`` on ``rows`` training rows: 1 / (C n)."""
     return 1.0 / (np.asarray(c, np.float64) * np.maximum(np.asarray(rows, np.float64), 1.0))

@@ -22,6 +22,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import SupportsFloat
 
 import dacite
 import numpy as np
@@ -296,7 +297,7 @@ class Evaluation:
     heads: dict[str, HeadResult]
     config: JsonObject
     seeds: dict[str, int]
-    versions: dict[str, str]
+    versions: dict[str, str | None]
     skipped_heads: dict[str, SkippedHead] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=dict)
     format: str = FORMAT
@@ -312,7 +313,7 @@ def nested(x: object) -> Nested:
     if a.dtype.kind in "iub":
         return a.tolist()
     rounded = np.round(a.astype(np.float64), 5)
-    return np.where(np.isnan(rounded), None, rounded).tolist()
+    return np.where(np.isnan(rounded), np.array(None), rounded).tolist()
 
 
 def level(x: Mapping[str, np.ndarray]) -> Level:
@@ -321,7 +322,7 @@ def level(x: Mapping[str, np.ndarray]) -> Level:
     return Level(nested(x["value"]), nested(x["low"]), nested(x["high"]), nested(x["defined"]), count)
 
 
-def number(x: object) -> float | None:
+def number(x: SupportsFloat) -> float | None:
     """One float rounded to 5 decimals, NaN -> None."""
     x = float(x)
     return None if math.isnan(x) else round(x, 5)

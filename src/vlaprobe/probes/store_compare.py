@@ -28,9 +28,9 @@ from vlaprobe.files import write_atomic
 from vlaprobe.probes.baselines import BASELINES, predict_baselines
 from vlaprobe.probes.metrics import atom_metrics, bootstrap_weights, fixed_set
 from vlaprobe.probes.split import filter_labels, rows_of, split_episodes
+from vlaprobe.symbols import HEADS
 
 FILE = "store_comparison.json"
-HEADS = ("object", "action")
 
 
 @dataclass(frozen=True)

@@ -199,7 +199,7 @@ def _list(x: np.ndarray | None) -> Json:
     if x is None:
         return None
     a = np.round(np.asarray(x, float), 5)
-    return np.where(np.isfinite(a), a, None).tolist()  # NaN -> null, any shape
+    return np.where(np.isfinite(a), a, np.array(None)).tolist()  # NaN -> null, any shape
 
 
 def _heatmap_data(evaluation: Evaluation, part: str, metric: str) -> tuple[list[str], np.ndarray, list[dict]]:
@@ -277,6 +277,8 @@ def _curve_data(
             if summaries is None or m not in summaries:
                 continue
             s = summaries[m].layer
+            low: np.ndarray | None
+            high: np.ndarray | None
             value, low, high = arr(s.value), arr(s.low), arr(s.high)
             if len(value) == 1:  # the baseline does not depend on the layer
                 value, low, high = (np.repeat(a, n) for a in (value, low, high))

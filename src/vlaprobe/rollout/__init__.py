@@ -7,11 +7,11 @@ run an episode: seeding, the driver, the loop; :func:`paced` replays stored reco
 :class:`DeferredObserver` lets the model observe an expert-driven episode after it ran, in batches.
 """
 
+from vlaprobe.configs.collect import DriverName
 from vlaprobe.rollout.deferred import DeferredObserver
 from vlaprobe.rollout.drivers import (
     DaggerDriver,
     Driver,
-    DriverName,
     ExpertDriver,
     PolicyDriver,
     make_driver,

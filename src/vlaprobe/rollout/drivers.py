@@ -11,15 +11,14 @@ simulator is in (``vlaprobe.envs.libero_expert``), so its label is meaningful wh
 
 from __future__ import annotations
 
-from typing import Literal, Protocol
+from typing import Protocol
 
 import numpy as np
 
+from vlaprobe.configs.collect import DriverName
 from vlaprobe.envs.base import Observation, TaskEnv
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.policies.base import PolicyStep, VLAPolicy
-
-DriverName = Literal["expert", "policy", "dagger"]
 
 
 class Driver(Protocol):

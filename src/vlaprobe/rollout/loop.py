@@ -273,9 +273,11 @@ def run_episode(
         world = env.world_state()
         object_atoms, action_atoms = env.labeler(world)
         t1 = time.perf_counter()
+        assert obs.image is not None  # rendering is on (checked after the reset)
         out = policy.step(obs.image, env.instruction)
         t2 = time.perf_counter()
         perturbation = "move" if move is not None else ""
+        action: np.ndarray
         label: np.ndarray | None  # the expert's action where it labels a step another actor took (DAgger)
         if terminal:
             action = np.full(7, np.nan)

@@ -15,9 +15,10 @@ from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
 
+from vlaprobe.configs.collect import DriverName
 from vlaprobe.envs.base import TaskEnv
 from vlaprobe.policies.base import VLAPolicy
-from vlaprobe.rollout.drivers import Driver, DriverName, make_driver
+from vlaprobe.rollout.drivers import Driver, make_driver
 from vlaprobe.rollout.loop import EpisodeControl, StepRecord, run_episode
 
 MakeDriver = Callable[[DriverName, TaskEnv, VLAPolicy, int, float], Driver]

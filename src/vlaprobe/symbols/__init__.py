@@ -3,6 +3,7 @@
 from vlaprobe.symbols.detectors import Labeler
 from vlaprobe.symbols.vocabulary import (
     ACTION_PREDICATES,
+    HEADS,
     OBJECT_PREDICATES,
     PREDICATES,
     Vocabulary,
@@ -15,6 +16,7 @@ from vlaprobe.symbols.world import Articulation, Goal, Scene, WorldState
 
 __all__ = [
     "ACTION_PREDICATES",
+    "HEADS",
     "OBJECT_PREDICATES",
     "PREDICATES",
     "Articulation",

@@ -39,6 +39,7 @@ OBJECT_PREDICATES: tuple[str, ...] = (
 ACTION_PREDICATES: tuple[str, ...] = ("grasped", "should-move-towards")
 PREDICATES: tuple[str, ...] = OBJECT_PREDICATES + ACTION_PREDICATES
 HEADS: tuple[str, ...] = ("object", "action")
+"""The label heads, in the order every package lists them: object state, then action state."""
 
 
 def atom(pred: str, *args: str) -> str:

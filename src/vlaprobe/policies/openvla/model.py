@@ -32,7 +32,7 @@ ACTION_DIM = 7
 def llama_config(cfg: OpenVLAConfig) -> LlamaConfig:
     """transformers' LlamaConfig for the decoder (SDPA attention, untied embeddings)."""
     t = cfg.text
-    return LlamaConfig(
+    return LlamaConfig(  # type: ignore[call-arg]  # rope_theta, attn_implementation: **kwargs on transformers 5
         vocab_size=t.vocab_size,
         hidden_size=t.hidden_size,
         intermediate_size=t.intermediate_size,
@@ -123,10 +123,12 @@ class OpenVLA(nn.Module):
             output_hidden_states=capture,
         )
         hidden = None
-        if capture:
+        if pooling is not None:
             states, n = out.hidden_states, self.config.num_patches
             hidden = torch.stack([_pool(tuple(h[i : i + 1] for h in states), pooling, n) for i in range(b)])
-        per_step = [hidden] if pooling == "action_tokens" else None
+        per_step: list[torch.Tensor] | None = (
+            [hidden] if hidden is not None and pooling == "action_tokens" else None
+        )
         logits = [lm.lm_head(out.last_hidden_state[:, -1])]
         tokens = [logits[-1].argmax(-1)]
         cache = out.get("cache")  # transformers 5.2x renamed past_key_values (and warns on the old name)
@@ -138,6 +140,7 @@ class OpenVLA(nn.Module):
         for _ in range(ACTION_DIM - 1):
             step_logits, step_states = decoder.step(tokens[-1])
             if per_step is not None:
+                assert step_states is not None  # the decoder records when per_step is kept
                 per_step.append(step_states)
             logits.append(step_logits)
             tokens.append(step_logits.argmax(-1))

@@ -8,15 +8,16 @@ gripper convention.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import torch
 
 from vlaprobe import devices
+from vlaprobe.configs.policy import POOLINGS, Pooling, Preprocessing
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject
-from vlaprobe.policies.base import POOLINGS, PolicyStep, Pooling
+from vlaprobe.policies.base import PolicyStep
 from vlaprobe.policies.openvla import actions, checkpoint, preprocessing
 from vlaprobe.policies.openvla.embedded import SEEDED_MODELS, embedded_folder
 from vlaprobe.policies.openvla.model import OpenVLA, Prediction, _pool
@@ -47,7 +48,7 @@ class OpenVLAPolicy:
         pooling: Pooling = "last_prompt",
         unnorm_key: str = "libero_spatial",
         center_crop: bool = True,
-        preprocessing: Literal["numpy", "tf"] = "numpy",
+        preprocessing: Preprocessing = "numpy",
         source: str = "tiny",
         seed: int | None = None,
     ) -> None:
@@ -117,7 +118,7 @@ class OpenVLAPolicy:
 
     @classmethod
     def load(cls, model: str, device: str = "auto", seed: int = 0, **kwargs: Any) -> OpenVLAPolicy:
-        """``load_policy``'s implementation: a seeded name ("tiny", "tiny-libero-init"), a shipped model's name
+        """``make_policy``'s implementation: a seeded name ("tiny", "tiny-libero-init"), a shipped model's name
         ("tiny-libero") or a checkpoint folder."""
         if model in SEEDED_MODELS:
             return cls.tiny(seed=seed, device=device, patch_size=SEEDED_MODELS[model], **kwargs)
@@ -125,7 +126,7 @@ class OpenVLAPolicy:
         return cls.from_folder(model if folder is None else folder, device=device, **kwargs)
 
     def save_pretrained(self, folder: str | Path) -> None:
-        """Write this model (safetensors + JSON config) so ``load_policy(folder)`` rebuilds it exactly."""
+        """Write this model (safetensors + JSON config) so ``make_policy(PolicyConfig(folder))`` rebuilds it exactly."""
         if not isinstance(self.tokenizer, WordHashTokenizer):
             raise VlaprobeError(
                 "save_pretrained writes models with the built-in tokenizer; copy an official checkpoint folder instead"

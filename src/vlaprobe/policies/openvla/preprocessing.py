@@ -23,14 +23,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from functools import lru_cache
-from typing import Literal
 
 import numpy as np
 
+from vlaprobe.configs.policy import Preprocessing
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.policies.openvla.jpeg import jpeg_round_trip
-
-Backend = Literal["numpy", "tf"]
 
 CROP_SCALE = 0.9
 """Area fraction of OpenVLA's LIBERO centre crop."""
@@ -189,7 +187,7 @@ def _libero_image_tf(raw: np.ndarray, size: int, center_crop: bool) -> np.ndarra
 
 
 def libero_image(
-    raw: np.ndarray, size: int = 224, center_crop: bool = True, backend: Backend = "numpy"
+    raw: np.ndarray, size: int = 224, center_crop: bool = True, backend: Preprocessing = "numpy"
 ) -> np.ndarray:
     """The raw LIBERO agentview render (H, W, 3) uint8, still upside down → the (size, size, 3) uint8 image
     OpenVLA's LIBERO evaluation hands to the processor."""

@@ -85,8 +85,9 @@ class HFTokenizer:
                     f"cannot read {folder / 'tokenizer.json'}: {exc}; restore it from the checkpoint"
                 ) from None
             self._encode = lambda text: self._tok.encode(text, add_special_tokens=False).ids
-            if self._bos_text is not None and self._tok.token_to_id(self._bos_text) is not None:
-                self._bos = self._tok.token_to_id(self._bos_text)
+            bos = None if self._bos_text is None else self._tok.token_to_id(self._bos_text)
+            if bos is not None:
+                self._bos = bos
         elif (folder / "tokenizer.model").is_file():
             try:
                 from transformers import AutoTokenizer
