@@ -13,6 +13,7 @@ from vlaprobe.collection.store import EpisodeInfo
 from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.configs.hypotheses import HypothesesConfig
 from vlaprobe.configs.train import ProbeConfig, SplitConfig, TrainConfig
+from vlaprobe.errors import VlaprobeError
 from vlaprobe.probes import synthetic_data
 from vlaprobe.probes.bootstrap import bootstrap_weights, percentile_interval
 from vlaprobe.probes.hypotheses import LayerCurves, answer_hypotheses, curves_from_counts, layer_statistics
@@ -187,6 +188,8 @@ def test_curves_and_intervals_equal_the_evaluation(trained: Path) -> None:
         assert [round(x, 5) for x in h.best_value_interval] == pytest.approx(
             [best["low"][i], best["high"][i]], abs=1e-9
         )
+    with pytest.raises(VlaprobeError, match="too few"):
+        run_curves(trained, None, resamples=5)
     other = run_curves(trained, None, seed=ev["seeds"]["bootstrap"] + 1)  # other resamples: other intervals
     np.testing.assert_array_equal(other.point["object"], curves.point["object"])
     assert not np.allclose(

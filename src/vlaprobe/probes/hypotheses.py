@@ -14,8 +14,9 @@ head's kept atoms: the ``layer`` level of ``evaluation.json``, computed by the s
 
 The object-minus-action difference of each statistic gets a percentile interval from bootstrap resamples of
 the test episodes (``vlaprobe.probes.bootstrap``), drawn **jointly** for both heads (the same resampled
-episodes score both), so the interval accounts for their correlation. H1 is read on ``earliest`` (negative supports it), H2 on ``best``
-(negative: the action head peaks later, supports it); an interval that holds 0 cannot tell.
+episodes score both), so the interval accounts for their correlation. H1 is read on ``earliest`` (negative
+supports it), H2 on ``best`` (negative: the action head peaks later, supports it); an interval that holds 0
+cannot tell.
 """
 
 from __future__ import annotations

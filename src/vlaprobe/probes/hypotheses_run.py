@@ -48,6 +48,13 @@ def run_curves(
             f"{probes} was trained with {ev['split']['folds']} folds, and its saved probes were refit on every "
             "episode; train with one train/test split (the default) for H1/H2"
         )
+    resamples = int(ev["bootstrap"]["resamples"]) if resamples is None else resamples
+    seed = int(ev["seeds"]["bootstrap"]) if seed is None else seed
+    if resamples < 10:
+        raise VlaprobeError(
+            f"{resamples} bootstrap resamples are too few for H1/H2 (without --bootstrap: those of {probes}'s "
+            "evaluation); pass --bootstrap 10 or more"
+        )
     ps = ProbeSet.load(probes)
     if not {"object", "action"} <= set(ps.heads):
         raise VlaprobeError(f"H1/H2 need object and action probes; {probes} has {ps.heads}")
@@ -75,8 +82,6 @@ def run_curves(
             logits = x @ ps.tensors[f"{head}.weight"][i] + ps.tensors[f"{head}.bias"][i]
             preds[i] = (logits > cut).numpy()
         counts[head] = confusion_by_group(preds, labels, episode, len(test))
-    resamples = int(ev["bootstrap"]["resamples"]) if resamples is None else resamples
-    seed = int(ev["seeds"]["bootstrap"]) if seed is None else seed
     return curves_from_counts(counts, ps.layers, bootstrap_weights(len(test), resamples, seed))
 
 
