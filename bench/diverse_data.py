@@ -222,10 +222,12 @@ def _baselines(records: list[dict]) -> dict[str, dict[str, float]] | None:
 
 
 def _balanced_accuracy(y: np.ndarray, p: np.ndarray) -> float:
-    pos, neg = y.sum(0), (~y).sum(0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ba = 0.5 * ((y & p).sum(0) / pos + (~y & ~p).sum(0) / neg)
-    return float(np.nanmean(np.where((pos > 0) & (neg > 0), ba, np.nan)))
+    """Mean balanced accuracy over the atoms of bool (rows, atoms) truth ``y`` and prediction ``p``."""
+    from vlaprobe.probes.bootstrap import nan_mean
+    from vlaprobe.probes.metrics import confusion_by_group, metrics_from_counts
+
+    counts = confusion_by_group(p[None], y, np.zeros(len(y), np.int64), 1)[0, 0]
+    return float(nan_mean(metrics_from_counts(counts)["balanced_accuracy"], 0))
 
 
 def summarize(records: list[dict]) -> dict:

@@ -1,17 +1,26 @@
-"""H1/H2 on synthetic curves with a known answer; layer statistics, counts and balanced accuracy by hand."""
+"""H1/H2 on synthetic curves with a known answer; curves by hand; and on a store and probes made by the real
+writers and ``vlaprobe train``, curves and intervals equal to ``evaluation.json``'s."""
 
 from __future__ import annotations
 
-import numpy as np
+import json
+from pathlib import Path
 
-from vlaprobe.probes.hypotheses import (
-    LayerCurves,
-    answer_hypotheses,
-    balanced_accuracy_curve,
-    curves_from_counts,
-    episode_counts,
-    layer_statistics,
-)
+import numpy as np
+import pytest
+
+from vlaprobe.collection.store import EpisodeInfo
+from vlaprobe.collection.writer import StoreWriter
+from vlaprobe.configs.hypotheses import HypothesesConfig
+from vlaprobe.configs.train import ProbeConfig, SplitConfig, TrainConfig
+from vlaprobe.errors import VlaprobeError
+from vlaprobe.probes import synthetic_data
+from vlaprobe.probes.bootstrap import bootstrap_weights, percentile_interval
+from vlaprobe.probes.hypotheses import LayerCurves, answer_hypotheses, curves_from_counts, layer_statistics
+from vlaprobe.probes.hypotheses_run import hypotheses, run_curves
+from vlaprobe.probes.metrics import confusion_by_group
+from vlaprobe.probes.split import make_folds
+from vlaprobe.probes.train import train_probes
 
 LAYERS = tuple(range(33))
 
@@ -65,26 +74,33 @@ def test_reversed_curves_contradict_and_equal_ones_cannot_tell() -> None:
     assert all(d.low <= 0 <= d.high for d in flat.differences.values())
 
 
-def test_counts_and_balanced_accuracy_by_hand() -> None:
+def test_curves_by_hand_leave_single_class_atoms_out() -> None:
     labels = np.array([[1, 0], [0, 0], [1, 0], [0, 1]], bool)  # rows x atoms
     preds = np.array([[[1, 0], [1, 0], [0, 0], [0, 1]]], bool)  # one layer
-    counts = episode_counts(labels, preds, np.array([0, 0, 1, 1]), 2)
-    assert counts.shape == (2, 1, 2, 4)
-    np.testing.assert_array_equal(counts[0, 0], [[1, 0, 1, 0], [0, 0, 0, 2]])  # tp fn fp tn
-    np.testing.assert_array_equal(counts[1, 0], [[0, 1, 0, 1], [1, 0, 0, 1]])
-    total = counts.sum(axis=0)
-    # atom 0: recall 1/2, specificity 1/2 -> 0.5; atom 1: 1 and 1 -> 1.0; mean 0.75
-    np.testing.assert_allclose(balanced_accuracy_curve(total), [0.75])
-    # episode 0 alone: atom 1 has no positive -> undefined and left out; atom 0: recall 1, spec 0 -> 0.5
-    np.testing.assert_allclose(balanced_accuracy_curve(counts[0]), [0.5])
+    counts = confusion_by_group(preds, labels, np.array([0, 0, 1, 1]), 2)
+    np.testing.assert_array_equal(counts[0, 0], [[1, 1, 0, 0], [0, 0, 0, 2]])  # tp fp fn tn
+    np.testing.assert_array_equal(counts[1, 0], [[0, 0, 1, 1], [1, 0, 0, 1]])
+    # resample 0 = both episodes: atom 0 recall 1/2, specificity 1/2 -> 0.5; atom 1: 1 and 1 -> 1.0; mean 0.75
+    # resample 1 = episode 0 twice: atom 1 has no positive -> undefined, enters with its point value 1.0;
+    #   atom 0: recall 1, specificity 0 -> 0.5; mean 0.75
+    # resample 2 = episode 1 twice: atom 0 recall 0, specificity 1 -> 0.5, atom 1 1.0
+    weights = np.array([[1.0, 1.0], [2.0, 0.0], [0.0, 2.0]])
+    c = curves_from_counts({"object": counts, "action": counts}, [0], weights)
+    np.testing.assert_allclose(c.point["object"], [0.75])
+    np.testing.assert_allclose(c.resamples["object"][:, 0], [0.75, 0.75, 0.75])
+    only_negatives = counts.copy()
+    only_negatives[:, :, 1] = [[0, 0, 0, 2]]  # atom 1 never true: left out, not scored by its specificity
+    c = curves_from_counts({"object": only_negatives, "action": counts}, [0], weights)
+    np.testing.assert_allclose(c.point["object"], [0.5])
+    assert c.episodes == 2
 
 
 def test_resamples_are_drawn_jointly_for_both_heads() -> None:
     rng = np.random.default_rng(1)
     labels = rng.random((60, 5)) < 0.4
     preds = labels[None] ^ (rng.random((4, 60, 5)) < np.linspace(0.4, 0.05, 4)[:, None, None])
-    counts = episode_counts(labels, preds, np.repeat(np.arange(6), 10), 6)
-    c = curves_from_counts({"object": counts, "action": counts}, range(4), resamples=50, seed=3)
+    counts = confusion_by_group(preds, labels, np.repeat(np.arange(6), 10), 6)
+    c = curves_from_counts({"object": counts, "action": counts}, range(4), bootstrap_weights(6, 50, seed=3))
     np.testing.assert_array_equal(c.resamples["object"], c.resamples["action"])  # same episodes drawn
     result = answer_hypotheses(c)
     assert all(d.value == d.low == d.high == 0 for d in result.differences.values())
@@ -98,3 +114,84 @@ def test_too_few_test_episodes_cannot_tell() -> None:
     assert "Only 2 test episodes" in few.verdicts[0].sentence and few.episodes == 2
     enough = answer_hypotheses(LayerCurves(c.layers, c.point, c.resamples, episodes=10))
     assert [v.verdict for v in enough.verdicts] == ["support", "support"]
+
+
+# ----- on a store written by the real writers, probes trained by `vlaprobe train` ----------------------------
+def _write_store(path: Path) -> None:
+    """Synthetic episodes with planted structure; object atom 0 is true on two whole training episodes and
+    false on every test episode: one class on the scored rows."""
+    data = synthetic_data(4, 5, 24, num_layers=4, hidden_size=16, num_object=10, num_action=4, signal=6.0)
+    (fold,) = make_folds(data.episode_tasks, SplitConfig(), seed=0)  # the split `vlaprobe train` makes
+    atom0 = np.isin(data.episode, fold.train[:2])
+    data.labels["object"][:, 0] = atom0
+    meta = {
+        "atom_names": data.atom_names,
+        "model_id": "synthetic",
+        "model": {"model_id": "synthetic"},
+        "num_hidden_states": 4,
+        "hidden_size": 16,
+        "pooling": "last_prompt",
+        "driver": "expert",
+        "suite": "libero_spatial",
+        "env": {},
+        "seed": 0,
+        "instructions": {str(t): f"task {t}" for t in range(4)},
+    }
+    with StoreWriter.open(path, meta) as writer:
+        for e, key in enumerate(data.episode_keys):
+            rows = data.episode == e
+            info = EpisodeInfo(
+                key, int(data.episode_tasks[e]), e, 0, True, int(rows.sum()), seed=e, driver="expert"
+            )
+            arrays = {
+                "hidden": data.hidden[:, rows].numpy(),
+                "object_atoms": data.labels["object"][rows],
+                "action_atoms": data.labels["action"][rows],
+            }
+            writer.write_episode(info, arrays)
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("hyp")
+    _write_store(root / "activations")
+    cfg = TrainConfig(
+        store=root / "activations",
+        out=root / "probes",
+        bootstrap=300,
+        auprc_bootstrap=400,  # more than `bootstrap`: train scores counts on the first 300 of 400 draws
+        shuffled_permutations=1,
+        probe=ProbeConfig(c_grid=(0.1, 1.0)),
+    )
+    return train_probes(cfg)
+
+
+def test_curves_and_intervals_equal_the_evaluation(trained: Path) -> None:
+    ev = json.loads((trained / "evaluation.json").read_text())
+    curves = run_curves(trained, None)
+    assert curves.episodes == ev["split"]["test"]["episodes"] and curves.resamples["object"].shape[0] == 300
+    obj = ev["heads"]["object"]
+    assert (
+        obj["probe"]["balanced_accuracy"]["atom"]["value"][0][obj["atoms"].index("behind(obj_0,obj_1)")]
+        is None
+    )
+    for head in ("object", "action"):
+        layer = ev["heads"][head]["probe"]["balanced_accuracy"]["layer"]
+        low, high = percentile_interval(curves.resamples[head])
+        for ours, theirs in ((curves.point[head], "value"), (low, "low"), (high, "high")):
+            np.testing.assert_allclose(np.round(ours, 5), np.array(layer[theirs], float), rtol=0, atol=1e-9)
+    result = hypotheses(HypothesesConfig(probes=trained))
+    for head, h in result.heads.items():
+        best = ev["heads"][head]["probe"]["balanced_accuracy"]["layer"]
+        i = curves.layers.index(h.best)
+        assert round(h.best_value, 5) == pytest.approx(best["value"][i], abs=1e-9)
+        assert [round(x, 5) for x in h.best_value_interval] == pytest.approx(
+            [best["low"][i], best["high"][i]], abs=1e-9
+        )
+    with pytest.raises(VlaprobeError, match="too few"):
+        run_curves(trained, None, resamples=5)
+    other = run_curves(trained, None, seed=ev["seeds"]["bootstrap"] + 1)  # other resamples: other intervals
+    np.testing.assert_array_equal(other.point["object"], curves.point["object"])
+    assert not np.allclose(
+        percentile_interval(other.resamples["object"])[0], percentile_interval(curves.resamples["object"])[0]
+    )

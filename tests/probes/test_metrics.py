@@ -1,4 +1,5 @@
-"""Metrics against hand-computed values: AUPRC with ties, confusion counts, bootstrap intervals."""
+"""Metrics against hand-computed values and scikit-learn: AUPRC with ties, confusion counts, the single-class
+rule of balanced accuracy, bootstrap intervals."""
 
 from __future__ import annotations
 
@@ -8,14 +9,16 @@ import numpy as np
 import pytest
 import torch
 
+from vlaprobe.probes.bootstrap import bootstrap_weights
 from vlaprobe.probes.metrics import (
+    COUNTS,
     atom_metrics,
     average_precision,
-    bootstrap_weights,
     confusion_by_group,
+    count_metrics,
     fixed_set,
+    layer_means,
     metrics_from_counts,
-    nan_percentiles,
     resampled_average_precision,
     summarize,
 )
@@ -79,12 +82,69 @@ def test_confusion_counts_and_metrics() -> None:
     assert m["f1"][0, 0] == pytest.approx(2 * 1 / (2 * 1 + 1 + 1))
 
 
-def test_undefined_metrics_are_nan_and_balanced_accuracy_uses_the_defined_class() -> None:
-    counts = np.array([0, 0, 0, 5], float)  # no positives, all predicted negative
-    m = metrics_from_counts(counts)
-    assert m["accuracy"] == 1.0
-    assert np.isnan(m["f1"])
-    assert m["balanced_accuracy"] == 1.0  # only the negative class's recall is defined
+def test_a_single_class_leaves_balanced_accuracy_and_f1_undefined() -> None:
+    assert COUNTS == ("tp", "fp", "fn", "tn")
+    m = metrics_from_counts(np.array([[0, 0, 0, 5], [0, 2, 0, 3], [4, 0, 1, 0], [2, 1, 2, 3]], float))
+    assert m["accuracy"].tolist() == pytest.approx([1.0, 0.6, 0.8, 5 / 8])
+    # no positives (rows 0, 1) or no negatives (row 2): one class, no balanced accuracy
+    assert np.isnan(m["balanced_accuracy"][:3]).all()
+    assert m["balanced_accuracy"][3] == pytest.approx((2 / 4 + 3 / 4) / 2)
+    assert np.isnan(m["f1"][:2]).all() and m["f1"][2] == pytest.approx(8 / 9)
+
+
+def test_the_issue_toy_case_has_one_answer() -> None:
+    # atom 0 both classes (recall 1/2, specificity 1/2); atom 1 only negatives, all predicted right
+    truth = np.array([[1, 0], [1, 0], [0, 0], [0, 0]], bool)
+    pred = np.array([[[1, 0], [0, 0], [1, 0], [0, 0]]], bool)
+    counts = confusion_by_group(pred, truth, np.zeros(4, int), 1)
+    point, _ = count_metrics(counts, bootstrap_weights(1, 3, 0))
+    value, _ = layer_means(point["balanced_accuracy"], point["balanced_accuracy"][None])
+    assert value.tolist() == [0.5]  # atom 1 is left out, not scored as its specificity (1.0 -> 0.75)
+
+
+def test_metrics_match_scikit_learn_on_random_data() -> None:
+    metrics = pytest.importorskip("sklearn.metrics")
+    rng = np.random.default_rng(7)
+    rows, atoms = 300, 12
+    truth = rng.random((rows, atoms)) < rng.uniform(0.05, 0.6, atoms)
+    scores = np.where(truth, 1.0, 0.0) * rng.uniform(0, 2, atoms) + rng.normal(0, 1, (rows, atoms))
+    scores = np.round(scores, 1)  # ties in the ranking, as AUPRC must handle
+    pred = scores > 0.5
+    counts = confusion_by_group(pred[None], truth, np.zeros(rows, int), 1)
+    m = metrics_from_counts(counts.sum(0))
+    ap = average_precision(torch.tensor(scores), torch.tensor(truth)).numpy()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for a in range(atoms):
+            y, p = truth[:, a], pred[:, a]
+            assert m["accuracy"][0, a] == pytest.approx(metrics.accuracy_score(y, p), abs=1e-12)
+            assert m["balanced_accuracy"][0, a] == pytest.approx(
+                metrics.balanced_accuracy_score(y, p), abs=1e-12
+            )
+            assert m["f1"][0, a] == pytest.approx(metrics.f1_score(y, p), abs=1e-12)
+            assert ap[a] == pytest.approx(metrics.average_precision_score(y, scores[:, a]), abs=1e-12)
+        # where they differ, by rule: one class on the rows
+        y, p = np.zeros(10, bool), np.r_[np.ones(2, bool), np.zeros(8, bool)]
+        assert metrics.balanced_accuracy_score(y, p) == pytest.approx(0.8)  # the negatives' recall
+    one = metrics_from_counts(confusion_by_group(p[None, :, None], y[:, None], np.zeros(10, int), 1).sum(0))
+    assert np.isnan(one["balanced_accuracy"][0, 0])
+
+
+def test_count_metrics_resample_by_weighted_episode_counts() -> None:
+    rng = np.random.default_rng(3)
+    groups = np.repeat(np.arange(5), 8)
+    truth = rng.random((40, 3)) < 0.4
+    pred = rng.random((2, 40, 3)) < 0.5
+    counts = confusion_by_group(pred, truth, groups, 5)
+    w = bootstrap_weights(5, 6, seed=1)
+    point, res = count_metrics(counts, w)
+    for r in range(6):  # resample r = the rows of its drawn episodes, repeated
+        rows = np.concatenate([np.flatnonzero(groups == g).repeat(int(k)) for g, k in enumerate(w[r])])
+        direct = metrics_from_counts(
+            confusion_by_group(pred[:, rows], truth[rows], np.zeros(len(rows), int), 1)[0]
+        )
+        for name in point:
+            np.testing.assert_allclose(res[name][r], direct[name], rtol=0, atol=1e-12)
 
 
 def test_bootstrap_intervals_bracket_the_point_and_shrink_with_data() -> None:
@@ -105,13 +165,6 @@ def test_bootstrap_intervals_bracket_the_point_and_shrink_with_data() -> None:
     assert lo <= v <= hi and 0.6 < v < 0.95
     lo2, _, hi2 = interval(160)
     assert hi2 - lo2 < (hi - lo) / 2
-
-
-def test_bootstrap_weights_resample_whole_groups() -> None:
-    w = bootstrap_weights(7, 50, seed=0)
-    assert w.shape == (50, 7)
-    assert np.all(w.sum(1) == 7)
-    assert np.array_equal(w, bootstrap_weights(7, 50, seed=0))
 
 
 def test_summarize_averages_predicates_over_their_atoms() -> None:
@@ -183,21 +236,6 @@ def test_interval_of_an_average_stays_centred_when_resamples_lose_rare_atoms() -
     assert abs(fixed.mean() - value) < 0.01 and abs(np.median(fixed) - value) < 0.01 and low < value < high
     assert changing.mean() - value > 0.02  # the bias this removes
     assert layer["defined"][0] < 2000 * 0.8  # resamples missing the rare episode are counted
-
-
-def test_nan_percentiles_are_numpys_to_the_last_bit() -> None:
-    rng = np.random.default_rng(0)
-    x = rng.normal(size=(200, 4, 9))
-    x[rng.random(x.shape) < 0.3] = np.nan
-    x[:, 0, 0] = np.nan  # a column without any defined value
-    x[1:, 1, 1] = np.nan  # one defined value
-    x[:, 2, 2] = 1.5  # constant
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # numpy warns on the all-NaN column
-        expected = np.nanpercentile(x, [2.5, 50, 97.5], axis=0)
-    for got, want in zip(nan_percentiles(x, (2.5, 50, 97.5)), expected, strict=True):
-        np.testing.assert_array_equal(got, want)
-    assert np.isnan(nan_percentiles(x, (2.5,))[0][0, 0])
 
 
 def test_resampled_average_precision_draws_whole_groups_at_every_column() -> None:

@@ -25,6 +25,7 @@ from vlaprobe.cognition.readout import HEADS, ProbeReadout
 from vlaprobe.configs.monitor import CognitionConfig, MonitorConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject, write_atomic
+from vlaprobe.probes.bootstrap import bootstrap_weights, interval, resample_sums
 
 if TYPE_CHECKING:
     from vlaprobe.collection.store import ActivationStore
@@ -263,13 +264,13 @@ def gain_interval(
     agree: np.ndarray, baseline: np.ndarray, cells: np.ndarray, resamples: int = 1000, seed: int = 0
 ) -> tuple[float, float] | None:
     """95% percentile-bootstrap interval over episodes of (sum agree - sum baseline) / sum cells, from
-    per-episode counts; None without episodes."""
+    per-episode counts (the episode bootstrap of ``vlaprobe.probes.bootstrap``); None without episodes."""
     if len(cells) == 0 or cells.sum() == 0:
         return None
-    idx = np.random.default_rng(seed).integers(0, len(cells), (resamples, len(cells)))
-    gain = (agree[idx].sum(1) - baseline[idx].sum(1)) / np.maximum(cells[idx].sum(1), 1)
-    low, high = np.percentile(gain, [2.5, 97.5])
-    return float(low), float(high)
+    weights = bootstrap_weights(len(cells), resamples, seed)
+    sums = resample_sums(weights, np.stack([agree, baseline, cells], 1).astype(np.float64))
+    gain = (sums[:, 0] - sums[:, 1]) / np.maximum(sums[:, 2], 1)
+    return interval(gain)
 
 
 def _figures(pairs: list[_Pair], mask: np.ndarray, rules: list[str]) -> tuple[ViolationFigures, ProbeFigures]:

@@ -17,10 +17,11 @@ class HypothesesConfig:
     saved probes are refit on every episode)."""
     store: Path | None = None
     """The activation store the probes were trained on. Default: the one named in the probes' config."""
-    bootstrap: int = 1000
-    """Resamples of the test episodes (each scores both heads)."""
-    seed: int = 0
-    """Seed of the resampling."""
+    bootstrap: int | None = None
+    """Resamples of the test episodes (each scores both heads). Default: those of ``vlaprobe train``
+    (``evaluation.json``'s bootstrap count), so the curves' intervals are the evaluation's."""
+    seed: int | None = None
+    """Seed of the resampling. Default: the evaluation's bootstrap seed (the same resamples)."""
     json: bool = False
     """Print the result as JSON instead of the sentences."""
 

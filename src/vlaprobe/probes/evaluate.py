@@ -15,6 +15,7 @@ import torch
 
 from vlaprobe.configs.train import TrainConfig
 from vlaprobe.probes.baselines import BASELINES, predict_baselines
+from vlaprobe.probes.bootstrap import nan_mean, nan_std
 from vlaprobe.probes.conditional import ConditionalFit, evaluate_conditional
 from vlaprobe.probes.data import ACTION_PREDICATES, OBJECT_PREDICATES, ProbeData, predicate
 from vlaprobe.probes.metrics import COUNT_METRICS, METRICS, atom_metrics, summarize
@@ -176,17 +177,6 @@ def _summary(point: np.ndarray, resampled: np.ndarray, groups: list[np.ndarray])
     return MetricSummary(atom=level(s["atom"]), predicate=level(s["predicate"]), layer=level(s["layer"]))
 
 
-def _nanmean(x: np.ndarray, axis: int) -> np.ndarray:
-    defined = ~np.isnan(x)
-    with np.errstate(invalid="ignore"):
-        return np.where(defined.any(axis), np.nansum(x, axis) / defined.sum(axis), np.nan)
-
-
-def _nanstd(x: np.ndarray, axis: int) -> np.ndarray:
-    mean = _nanmean(x, axis)
-    return np.sqrt(_nanmean((x - np.expand_dims(mean, axis)) ** 2, axis))
-
-
 def best_layer(
     layer_values: np.ndarray,
     low: np.ndarray,
@@ -277,9 +267,9 @@ def evaluate_head(
         result.control_spread = {}
         for m in METRICS:
             per_perm = np.stack([r[0][m] for r in runs])  # (permutations, layers, atoms)
-            by_pred = np.stack([_nanmean(per_perm[:, :, g], 2) for g in groups], 2)
+            by_pred = np.stack([nan_mean(per_perm[:, :, g], 2) for g in groups], 2)
             result.control_spread[m] = Spread(
-                predicate=nested(_nanstd(by_pred, 0)), layer=nested(_nanstd(_nanmean(per_perm, 2), 0))
+                predicate=nested(nan_std(by_pred, 0)), layer=nested(nan_std(nan_mean(per_perm, 2), 0))
             )
         result.selectivity = {
             m: _summary(point[m] - c_point[m], res[m] - c_res[m], groups) for m in COUNT_METRICS

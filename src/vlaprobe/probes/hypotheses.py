@@ -1,7 +1,9 @@
 """The paper's open hypotheses, answered with intervals.
 
 H1: object states are encoded in earlier layers than action states. H2: action states peak in later layers.
-Per head, from its metric-versus-layer curve (balanced accuracy on the test episodes):
+Per head, from its metric-versus-layer curve (balanced accuracy on the test episodes, the mean over the
+head's kept atoms: the ``layer`` level of ``evaluation.json``, computed by the same functions of
+``vlaprobe.probes.metrics`` on the same bootstrap resamples, so curve and per-layer intervals equal it):
 
 - **best**: the layer of the highest value (first on ties);
 - **earliest**: the first layer whose value is within the best layer's interval (at least the best value minus
@@ -11,9 +13,10 @@ Per head, from its metric-versus-layer curve (balanced accuracy on the test epis
   embedding, so its poor score and the jump after it are automatic.
 
 The object-minus-action difference of each statistic gets a percentile interval from bootstrap resamples of
-the test episodes, drawn **jointly** for both heads (the same resampled episodes score both), so the
-interval accounts for their correlation. H1 is read on ``earliest`` (negative supports it), H2 on ``best``
-(negative: the action head peaks later, supports it); an interval that holds 0 cannot tell.
+the test episodes (``vlaprobe.probes.bootstrap``), drawn **jointly** for both heads (the same resampled
+episodes score both), so the interval accounts for their correlation. H1 is read on ``earliest`` (negative
+supports it), H2 on ``best`` (negative: the action head peaks later, supports it); an interval that holds 0
+cannot tell.
 """
 
 from __future__ import annotations
@@ -22,6 +25,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
+
+from vlaprobe.probes.bootstrap import interval
+from vlaprobe.probes.metrics import count_metrics, layer_means
 
 STATISTICS = ("best", "earliest", "steepest")
 MIN_EPISODES = 8
@@ -38,7 +44,7 @@ class LayerCurves:
     """Head ("object", "action") -> (layers,) metric on all test episodes."""
     resamples: Mapping[str, np.ndarray]
     """Head -> (resamples, layers): row b of every head is computed on the same resampled episodes. NaN where a
-    resample leaves the metric undefined."""
+    resample leaves the metric undefined at every atom."""
     metric: str = "balanced_accuracy"
     episodes: int | None = None
     """Test episodes the resamples were drawn from (None: unknown, e.g. synthetic curves)."""
@@ -96,14 +102,6 @@ class Hypotheses:
         return asdict(self)
 
 
-def _interval(values: np.ndarray) -> tuple[float, float]:
-    values = values[np.isfinite(values)]
-    if not len(values):
-        return (float("nan"), float("nan"))
-    low, high = np.percentile(values, [2.5, 97.5])
-    return float(low), float(high)
-
-
 def layer_statistics(curve: np.ndarray, layers: Sequence[int], tolerance: float) -> dict[str, int]:
     """best, earliest (within ``tolerance`` of the best value) and steepest layer of one curve."""
     c = np.where(np.isfinite(curve), curve, -np.inf)
@@ -119,7 +117,7 @@ def layer_statistics(curve: np.ndarray, layers: Sequence[int], tolerance: float)
 def _head(curves: LayerCurves, head: str) -> tuple[HeadLayers, dict[str, np.ndarray]]:
     layers, point, boot = curves.layers, curves.point[head], curves.resamples[head]
     best_i = int(np.argmax(np.where(np.isfinite(point), point, -np.inf)))
-    low, high = _interval(boot[:, best_i])
+    low, high = interval(boot[:, best_i])
     tolerance = 0.5 * (high - low) if np.isfinite(low) else 0.0
     stats = layer_statistics(point, layers, tolerance)
     per = {
@@ -127,7 +125,7 @@ def _head(curves: LayerCurves, head: str) -> tuple[HeadLayers, dict[str, np.ndar
     }
 
     def iv(s: str) -> tuple[int, int]:
-        a, b = _interval(per[s])
+        a, b = interval(per[s])
         return (round(a), round(b))
 
     result = HeadLayers(
@@ -180,7 +178,7 @@ def answer_hypotheses(curves: LayerCurves) -> Hypotheses:
     heads = {"object": obj, "action": act}
     differences = {}
     for s in STATISTICS:
-        low, high = _interval(obj_per[s] - act_per[s])
+        low, high = interval(obj_per[s] - act_per[s])
         differences[s] = Difference(s, float(getattr(obj, s) - getattr(act, s)), low, high)
     verdicts = [
         _verdict(
@@ -203,43 +201,17 @@ def answer_hypotheses(curves: LayerCurves) -> Hypotheses:
     return Hypotheses(curves.metric, b.pop(), curves.episodes, heads, differences, verdicts)
 
 
-# ----- curves from predictions ----------------------------------------------------------------------------------
-def episode_counts(
-    labels: np.ndarray, predictions: np.ndarray, episode: np.ndarray, episodes: int
-) -> np.ndarray:
-    """(episodes, layers, atoms, 4) counts of true positives, false negatives, false positives, true negatives,
-    from bool ``labels`` (rows, atoms), ``predictions`` (layers, rows, atoms) and each row's episode."""
-    y = labels.astype(bool)[None]
-    p = predictions.astype(bool)
-    kinds = np.stack([y & p, y & ~p, ~y & p, ~y & ~p], axis=-1)  # (layers, rows, atoms, 4)
-    out = np.zeros((episodes, *kinds.shape[:1], *kinds.shape[2:]), dtype=np.int64)
-    np.add.at(out, episode, np.moveaxis(kinds, 1, 0).astype(np.int64))
-    return out
-
-
-def balanced_accuracy_curve(counts: np.ndarray) -> np.ndarray:
-    """(…, layers) mean balanced accuracy over the atoms that have both classes, from (…, layers, atoms, 4)."""
-    tp, fn, fp, tn = np.moveaxis(counts.astype(np.float64), -1, 0)
-    pos, neg = tp + fn, fp + tn
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ba = 0.5 * (tp / pos + tn / neg)
-    ba = np.where((pos > 0) & (neg > 0), ba, np.nan)
-    with np.errstate(invalid="ignore"), np.testing.suppress_warnings() as sup:
-        sup.filter(RuntimeWarning)
-        return np.nanmean(ba, axis=-1)
-
-
+# ----- curves from confusion counts ---------------------------------------------------------------------------
 def curves_from_counts(
-    counts: Mapping[str, np.ndarray], layers: Sequence[int], resamples: int, seed: int
+    counts: Mapping[str, np.ndarray], layers: Sequence[int], weights: np.ndarray
 ) -> LayerCurves:
-    """:class:`LayerCurves` of balanced accuracy from per-episode counts (:func:`episode_counts`) per head; the
-    resampled episodes are drawn once and used for every head."""
-    heads = list(counts)
-    episodes = len(counts[heads[0]])
-    rng = np.random.default_rng(seed)
-    weights = np.stack(
-        [np.bincount(rng.integers(0, episodes, episodes), minlength=episodes) for _ in range(resamples)]
-    )
-    point = {h: balanced_accuracy_curve(c.sum(axis=0)) for h, c in counts.items()}
-    boot = {h: balanced_accuracy_curve(np.einsum("be,elak->blak", weights, c)) for h, c in counts.items()}
-    return LayerCurves(tuple(int(x) for x in layers), point, boot, episodes=episodes)
+    """:class:`LayerCurves` of balanced accuracy per head from its per-episode confusion counts (episodes,
+    layers, atoms, 4) (:func:`~vlaprobe.probes.metrics.confusion_by_group`) and one set of resample
+    multiplicities (resamples, episodes) (:func:`~vlaprobe.probes.bootstrap.bootstrap_weights`), used for
+    every head. The curve is :func:`~vlaprobe.probes.metrics.layer_means` of the per-atom balanced accuracy,
+    as ``evaluation.json``'s ``layer`` level."""
+    point, boot = {}, {}
+    for head, c in counts.items():
+        p, r = count_metrics(c, weights)
+        point[head], boot[head] = layer_means(p["balanced_accuracy"], r["balanced_accuracy"])
+    return LayerCurves(tuple(int(x) for x in layers), point, boot, episodes=int(weights.shape[1]))

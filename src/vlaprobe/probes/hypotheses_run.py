@@ -1,8 +1,10 @@
 """``vlaprobe hypotheses``: H1/H2 (``vlaprobe.probes.hypotheses``) on a trained probe folder and its store.
 
 The saved probes predict every test episode's steps at every layer; per-episode confusion counts give the
-balanced-accuracy curves and their joint bootstrap resamples. The result goes to ``hypotheses.json`` in the
-probe folder (the report's "H1 and H2" section reads it).
+balanced-accuracy curves and their joint bootstrap resamples, with the functions and (by default) the
+resamples of ``vlaprobe train``: its bootstrap seed and count, read from ``evaluation.json``, so the curves
+and their per-layer intervals are the evaluation's ``layer`` level. The result goes to ``hypotheses.json``
+in the probe folder (the report's "H1 and H2" section reads it).
 """
 
 from __future__ import annotations
@@ -17,13 +19,9 @@ import torch
 from vlaprobe.configs.hypotheses import HypothesesConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import write_atomic
-from vlaprobe.probes.hypotheses import (
-    Hypotheses,
-    LayerCurves,
-    answer_hypotheses,
-    curves_from_counts,
-    episode_counts,
-)
+from vlaprobe.probes.bootstrap import bootstrap_weights
+from vlaprobe.probes.hypotheses import Hypotheses, LayerCurves, answer_hypotheses, curves_from_counts
+from vlaprobe.probes.metrics import confusion_by_group
 
 FILE = "hypotheses.json"
 
@@ -36,8 +34,11 @@ def read_json(path: Path) -> dict:
         raise VlaprobeError(f"cannot read {path}; pass the --out folder of `vlaprobe train`") from None
 
 
-def run_curves(probes: Path, store: Path | None, resamples: int, seed: int) -> LayerCurves:
-    """Balanced-accuracy curves of both heads on the probes' test episodes, with joint resamples."""
+def run_curves(
+    probes: Path, store: Path | None, resamples: int | None = None, seed: int | None = None
+) -> LayerCurves:
+    """Balanced-accuracy curves of both heads on the probes' test episodes, with joint resamples: by default
+    (None) the evaluation's (its bootstrap count and seed), else ``resamples`` drawn with ``seed``."""
     from vlaprobe.probes import ProbeSet
     from vlaprobe.probes.data import load_store
 
@@ -46,6 +47,13 @@ def run_curves(probes: Path, store: Path | None, resamples: int, seed: int) -> L
         raise VlaprobeError(
             f"{probes} was trained with {ev['split']['folds']} folds, and its saved probes were refit on every "
             "episode; train with one train/test split (the default) for H1/H2"
+        )
+    resamples = int(ev["bootstrap"]["resamples"]) if resamples is None else resamples
+    seed = int(ev["seeds"]["bootstrap"]) if seed is None else seed
+    if resamples < 10:
+        raise VlaprobeError(
+            f"{resamples} bootstrap resamples are too few for H1/H2 (without --bootstrap: those of {probes}'s "
+            "evaluation); pass --bootstrap 10 or more"
         )
     ps = ProbeSet.load(probes)
     if not {"object", "action"} <= set(ps.heads):
@@ -73,13 +81,13 @@ def run_curves(probes: Path, store: Path | None, resamples: int, seed: int) -> L
                 x = (x - mean[i]) / std[i]
             logits = x @ ps.tensors[f"{head}.weight"][i] + ps.tensors[f"{head}.bias"][i]
             preds[i] = (logits > cut).numpy()
-        counts[head] = episode_counts(labels, preds, episode, len(test))
-    return curves_from_counts(counts, ps.layers, resamples, seed)
+        counts[head] = confusion_by_group(preds, labels, episode, len(test))
+    return curves_from_counts(counts, ps.layers, bootstrap_weights(len(test), resamples, seed))
 
 
 def hypotheses(cfg: HypothesesConfig) -> Hypotheses:
     """Compute and save ``hypotheses.json`` in the probe folder."""
-    if cfg.bootstrap < 10:
+    if cfg.bootstrap is not None and cfg.bootstrap < 10:
         raise VlaprobeError(f"--bootstrap must be at least 10, got {cfg.bootstrap}")
     result = answer_hypotheses(run_curves(Path(cfg.probes), cfg.store, cfg.bootstrap, cfg.seed))
     write_atomic(Path(cfg.probes) / FILE, json.dumps(result.as_dict(), indent=1).encode())

@@ -1,16 +1,26 @@
-"""Classification metrics per (layer, atom), their episode-bootstrap intervals, and averages per predicate.
+"""Classification metrics per (layer, atom), their episode-bootstrap resamples, and averages per predicate.
 
-Counts first: per test episode, layer and atom the confusion counts (tp, fp, fn, tn). A bootstrap resample
-draws test episodes with replacement, so its counts are a weighted sum of the per-episode counts and
-accuracy, balanced accuracy and F1 of a thousand resamples cost one small matmul. AUPRC needs the ranking
-of scores: every column is sorted once and each resample only reweights the sorted rows.
+The one implementation of confusion counts, accuracy, balanced accuracy, F1 and AUPRC in vlaprobe
+(``vlaprobe train``, ``hypotheses``, ``compare-stores``); resampling and intervals are in
+:mod:`vlaprobe.probes.bootstrap`.
 
-A metric that is undefined (F1 or AUPRC with no positive step, a recall with no members of its class) is NaN
-and left out of averages; :func:`summarize` reports how many atoms each average covers. A bootstrap resample
-that lacks a class the full test set has (e.g. none of an atom's positive episodes was drawn) leaves the
-atom's balanced accuracy and F1 undefined in that resample, as they would be on such a test set, instead of
-scoring only the class that is left (which biased the intervals upward); each figure records in how many
-resamples it was defined.
+Counts first: per test episode, layer and atom the confusion counts, always in the order (tp, fp, fn, tn)
+(:data:`COUNTS`). A bootstrap resample draws test episodes with replacement, so its counts are a weighted sum
+of the per-episode counts and accuracy, balanced accuracy and F1 of a thousand resamples cost one small
+matmul. AUPRC needs the ranking of scores: every column is sorted once and each resample only reweights the
+sorted rows.
+
+**Balanced accuracy** is the mean of the recall of the positives and the recall of the negatives, and it is
+**defined only where the scored rows hold both classes**. An atom with a single class on the scored rows (all
+test steps false, say) has no balanced accuracy: it is NaN, left out of averages (``count`` says how many
+atoms an average covers). The rule is the same on the full test set and in every resample (a resample that
+draws none of an atom's positive episodes leaves its balanced accuracy undefined there), so point values and
+intervals agree on which atoms they are about. (scikit-learn's ``balanced_accuracy_score`` instead returns the
+recall of the one class present, with a warning; on rows holding both classes the two agree.)
+
+F1 and AUPRC are undefined without a positive row (whatever the false positives); accuracy always is defined.
+Undefined is NaN everywhere; :func:`summarize` reports how many atoms each average covers and in how many
+resamples each figure was defined.
 """
 
 from __future__ import annotations
@@ -19,20 +29,24 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from vlaprobe.probes.bootstrap import nan_mean, percentile_interval, resample_sums
+
 METRICS = ("accuracy", "balanced_accuracy", "f1", "auprc")
 """Every metric reported, in display order."""
 COUNT_METRICS = ("accuracy", "balanced_accuracy", "f1")
 """Metrics computed from confusion counts."""
+COUNTS = ("tp", "fp", "fn", "tn")
+"""The order of the last axis of every confusion-count array."""
 
 
 def confusion_by_group(
-    pred: torch.Tensor, truth: np.ndarray, groups: np.ndarray, num_groups: int
+    pred: torch.Tensor | np.ndarray, truth: np.ndarray, groups: np.ndarray, num_groups: int
 ) -> np.ndarray:
     """Confusion counts (groups, layers, atoms, 4 = tp, fp, fn, tn) of bool ``pred`` (layers, rows, atoms).
 
     ``truth`` is bool (rows, atoms); ``groups`` int (rows,) in [0, num_groups), e.g. the test episode.
     """
-    pred = pred.bool()
+    pred = torch.as_tensor(np.asarray(pred) if isinstance(pred, np.ndarray) else pred).bool()
     truth_t = torch.as_tensor(np.asarray(truth, bool))
     index = torch.as_tensor(np.asarray(groups), dtype=torch.long)
     atoms = pred.shape[2]
@@ -51,16 +65,25 @@ def confusion_by_group(
 
 
 def metrics_from_counts(counts: np.ndarray) -> dict[str, np.ndarray]:
-    """accuracy, balanced accuracy (mean of the defined class recalls) and F1 (undefined without a positive
-    step, whatever the false positives) from (..., 4) counts."""
-    tp, fp, fn, tn = (counts[..., i] for i in range(4))
+    """accuracy, balanced accuracy (undefined unless both classes are present) and F1 (undefined without a
+    positive step, whatever the false positives) from (..., 4) counts in :data:`COUNTS` order."""
+    tp, fp, fn, tn = (np.asarray(counts, np.float64)[..., i] for i in range(4))
+    positives, negatives = tp + fn, tn + fp
     with np.errstate(invalid="ignore", divide="ignore"):
-        accuracy = (tp + tn) / (tp + fp + fn + tn)
-        recalls = np.stack([tp / (tp + fn), tn / (tn + fp)])
-        defined = ~np.isnan(recalls)
-        balanced = np.where(defined.any(0), np.nansum(recalls, 0) / defined.sum(0), np.nan)
-        f1 = np.where(tp + fn > 0, 2 * tp / (2 * tp + fp + fn), np.nan)
+        accuracy = (tp + tn) / (positives + negatives)
+        both = (positives > 0) & (negatives > 0)
+        balanced = np.where(both, 0.5 * (tp / positives + tn / negatives), np.nan)
+        f1 = np.where(positives > 0, 2 * tp / (2 * tp + fp + fn), np.nan)
     return {"accuracy": accuracy, "balanced_accuracy": balanced, "f1": f1}
+
+
+def count_metrics(
+    counts: np.ndarray, weights: np.ndarray
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """:data:`COUNT_METRICS` on all groups, (...), and in every resample of ``weights``, (resamples, ...),
+    from per-group counts (groups, ..., 4) and (resamples, groups) multiplicities
+    (:func:`~vlaprobe.probes.bootstrap.bootstrap_weights`)."""
+    return metrics_from_counts(counts.sum(0)), metrics_from_counts(resample_sums(weights, counts))
 
 
 def _sorted_blocks(scores: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -140,14 +163,6 @@ def resampled_average_precision(
     return out
 
 
-def bootstrap_weights(num_groups: int, resamples: int, seed: int) -> np.ndarray:
-    """(resamples, groups) multiplicities of groups drawn with replacement, as many as there are groups."""
-    rng = np.random.default_rng(seed)
-    return rng.multinomial(num_groups, np.full(num_groups, 1.0 / num_groups), size=resamples).astype(
-        np.float64
-    )
-
-
 def atom_metrics(
     logits: torch.Tensor,
     truth: np.ndarray,
@@ -163,16 +178,7 @@ def atom_metrics(
     ``auprc_resamples`` rows of ``weights`` (an empty array when 0).
     """
     counts = confusion_by_group(logits > threshold_logit, truth, groups, num_groups)
-    total = counts.sum(0)
-    point = metrics_from_counts(total)
-    resampled_counts = np.einsum("rg,glac->rlac", weights, counts)
-    resampled = metrics_from_counts(resampled_counts)
-    # A class present in the test set but absent from a resample: the class-balanced metrics are undefined.
-    positives, negatives = total[..., 0] + total[..., 2], total[..., 1] + total[..., 3]
-    r_pos = resampled_counts[..., 0] + resampled_counts[..., 2]
-    r_neg = resampled_counts[..., 1] + resampled_counts[..., 3]
-    missing = ((positives > 0) & (r_pos == 0)) | ((negatives > 0) & (r_neg == 0))
-    resampled["balanced_accuracy"] = np.where(missing, np.nan, resampled["balanced_accuracy"])
+    point, resampled = count_metrics(counts, weights)
     layers, _, atoms = logits.shape
     columns = logits.permute(1, 0, 2).reshape(logits.shape[1], layers * atoms)
     truth_cols = torch.as_tensor(np.asarray(truth, bool)).repeat(1, layers)
@@ -185,43 +191,6 @@ def atom_metrics(
                 logits[:, :, a].T, np.asarray(truth)[:, a], groups, group_weights
             )
     return point, resampled
-
-
-def _interval(resampled: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """2.5th and 97.5th percentiles over axis 0, NaN where fewer than 2 resamples are defined."""
-    if resampled.shape[0] < 2:
-        nan = np.full(resampled.shape[1:], np.nan)
-        return nan, nan
-    ok = (~np.isnan(resampled)).sum(0) >= 2
-    low, high = nan_percentiles(resampled, (2.5, 97.5))
-    return np.where(ok, low, np.nan), np.where(ok, high, np.nan)
-
-
-def nan_percentiles(x: np.ndarray, qs: tuple[float, ...]) -> list[np.ndarray]:
-    """``np.nanpercentile(x, q, axis=0)`` for each q (its default linear method, the same numbers), NaN
-    where a column has no defined value. One sort of the whole array instead of numpy's per-column loop
-    for arrays with NaNs (seconds on the layers x atoms of a probe evaluation)."""
-    ordered = np.sort(x, axis=0)  # NaNs sort last
-    n = (~np.isnan(x)).sum(0)
-    out = []
-    for q in qs:
-        virtual = (n - 1) * (q / 100)
-        below = np.clip(np.floor(virtual), 0, np.maximum(n - 1, 0)).astype(np.int64)
-        above = np.minimum(below + 1, np.maximum(n - 1, 0))
-        t = virtual - below
-        a = np.take_along_axis(ordered, below[None], 0)[0]
-        b = np.take_along_axis(ordered, above[None], 0)[0]
-        with np.errstate(invalid="ignore"):
-            diff = b - a
-            value = np.where(t >= 0.5, b - diff * (1 - t), a + diff * t)  # numpy's _lerp, the same rounding
-        out.append(np.where(n > 0, value, np.nan))
-    return out
-
-
-def _nanmean(x: np.ndarray, axis: int) -> np.ndarray:
-    defined = ~np.isnan(x)
-    with np.errstate(invalid="ignore"):
-        return np.where(defined.any(axis), np.nansum(x, axis) / defined.sum(axis), np.nan)
 
 
 def _complete(point: np.ndarray, resampled: np.ndarray, axis_atoms: list[np.ndarray]) -> np.ndarray:
@@ -243,23 +212,31 @@ def fixed_set(point: np.ndarray, resampled: np.ndarray) -> np.ndarray:
     return np.where(defined_at_point, filled, np.nan)
 
 
+def layer_means(point: np.ndarray, resampled: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per layer, the mean over atoms of ``point`` (layers, atoms) and of every resample (resamples, layers,
+    atoms), over the fixed set of :func:`fixed_set`: the curve of ``evaluation.json``'s ``layer`` level and
+    of ``vlaprobe hypotheses``. Returns (layers,) and (resamples, layers)."""
+    return nan_mean(point, 1), nan_mean(fixed_set(point, resampled), 2)
+
+
 def summarize(
     point: np.ndarray, resampled: np.ndarray, groups: list[np.ndarray]
 ) -> dict[str, dict[str, np.ndarray]]:
     """Per atom, per predicate (mean over ``groups`` of atom columns) and per layer (mean over all atoms).
 
     ``point`` is (layers, atoms), ``resampled`` (resamples, layers, atoms). Each level gets its value and a
-    95% percentile interval computed from the same resamples (so intervals of averages are correct,
-    not averages of intervals; averages over the fixed set of :func:`fixed_set`); ``count`` says how many atoms were defined in each average and ``defined`` in
-    how many resamples the figure was defined over all of its atoms (an atom: in which it was defined).
+    95% percentile interval computed from the same resamples (so intervals of averages are correct, not
+    averages of intervals; averages over the fixed set of :func:`fixed_set`); ``count`` says how many atoms
+    were defined in each average and ``defined`` in how many resamples the figure was defined over all of its
+    atoms (an atom: in which it was defined).
     """
     out: dict[str, dict[str, np.ndarray]] = {}
-    low, high = _interval(resampled)
+    low, high = percentile_interval(resampled)
     fixed = fixed_set(point, resampled)
     out["atom"] = {"value": point, "low": low, "high": high, "defined": (~np.isnan(resampled)).sum(0)}
-    pred_point = np.stack([_nanmean(point[:, g], 1) for g in groups], 1)
-    pred_res = np.stack([_nanmean(fixed[:, :, g], 2) for g in groups], 2) if groups else resampled[..., :0]
-    low, high = _interval(pred_res)
+    pred_point = np.stack([nan_mean(point[:, g], 1) for g in groups], 1)
+    pred_res = np.stack([nan_mean(fixed[:, :, g], 2) for g in groups], 2) if groups else resampled[..., :0]
+    low, high = percentile_interval(pred_res)
     counts = np.stack([(~np.isnan(point[:, g])).sum(1) for g in groups], 1)
     out["predicate"] = {
         "value": pred_point,
@@ -268,10 +245,10 @@ def summarize(
         "count": counts,
         "defined": _complete(point, resampled, groups),
     }
-    layer_res = _nanmean(fixed, 2)
-    low, high = _interval(layer_res)
+    layer_point, layer_res = layer_means(point, resampled)
+    low, high = percentile_interval(layer_res)
     out["layer"] = {
-        "value": _nanmean(point, 1),
+        "value": layer_point,
         "low": low,
         "high": high,
         "count": (~np.isnan(point)).sum(1),

@@ -26,7 +26,8 @@ from vlaprobe.configs.stores import CompareStoresConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import write_atomic
 from vlaprobe.probes.baselines import BASELINES, predict_baselines
-from vlaprobe.probes.metrics import atom_metrics, bootstrap_weights, fixed_set
+from vlaprobe.probes.bootstrap import bootstrap_weights, interval
+from vlaprobe.probes.metrics import atom_metrics, layer_means
 from vlaprobe.probes.split import filter_labels, rows_of, split_episodes
 from vlaprobe.symbols import HEADS
 
@@ -106,21 +107,15 @@ def baseline_scores(
     for name in BASELINES:
         logits = torch.from_numpy(np.where(pred[name], 1.0, -1.0)[None])  # the probes' scoring, at logit 0
         points, resamples = atom_metrics(logits, labels[test], group, len(test_episodes), 0.0, weights, 0)
-        point = points["balanced_accuracy"]  # (1, atoms)
-        resampled = fixed_set(point, resamples["balanced_accuracy"])[:, 0]  # (resamples, atoms)
-        defined = ~np.isnan(point[0])
-        value = float(point[0][defined].mean()) if defined.any() else float("nan")
-        per_resample = resampled[:, defined].mean(1) if defined.any() else np.full(len(weights), np.nan)
-        out[name] = (value, per_resample)
+        value, per_resample = layer_means(points["balanced_accuracy"], resamples["balanced_accuracy"])
+        out[name] = (float(value[0]), per_resample[:, 0])
     return out
 
 
 def _interval(x: np.ndarray) -> tuple[float | None, float | None]:
-    x = x[np.isfinite(x)]
-    if len(x) < 2:
-        return None, None
-    low, high = np.percentile(x, [2.5, 97.5])
-    return float(low), float(high)
+    """The bootstrap interval of ``x`` (resamples,), None where undefined (the file's convention)."""
+    low, high = interval(x)
+    return _none(low), _none(high)
 
 
 def _store_scores(path: Path, cfg: CompareStoresConfig) -> tuple[dict[str, Any], dict[str, Any]]:

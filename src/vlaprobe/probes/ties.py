@@ -18,7 +18,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from vlaprobe.probes.metrics import fixed_set, nan_percentiles
+from vlaprobe.probes.bootstrap import nan_percentiles
+from vlaprobe.probes.metrics import fixed_set
 
 TIE_RULE = (
     "layers whose paired 95% bootstrap interval of (best minus layer), over the same test-episode "

@@ -27,10 +27,10 @@ from vlaprobe.configs.train import TrainConfig
 from vlaprobe.devices import resolve_device
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import write_atomic
+from vlaprobe.probes.bootstrap import bootstrap_weights
 from vlaprobe.probes.conditional import conditional_fit
 from vlaprobe.probes.data import ProbeData, load_store
 from vlaprobe.probes.evaluate import CrossFit, column_groups, cross_fit, evaluate_head
-from vlaprobe.probes.metrics import bootstrap_weights
 from vlaprobe.probes.outfolder import check_free_space, check_probe_folder, locked, replace_folder
 from vlaprobe.probes.probeset import ProbeSet
 from vlaprobe.probes.record import config_dict, evaluation_record, probe_meta
