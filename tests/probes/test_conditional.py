@@ -16,6 +16,7 @@ from sklearn.preprocessing import StandardScaler
 from vlaprobe.configs.train import ProbeConfig, TrainConfig
 from vlaprobe.probes import synthetic_data, train_on_data
 from vlaprobe.probes.baselines import predict_baselines, time_bin
+from vlaprobe.probes.bootstrap import bootstrap_weights
 from vlaprobe.probes.conditional import (
     ConditionalFit,
     adds_beyond,
@@ -24,7 +25,6 @@ from vlaprobe.probes.conditional import (
     conditional_fit,
     evaluate_conditional,
 )
-from vlaprobe.probes.metrics import bootstrap_weights
 from vlaprobe.probes.results import ConditionalProbe, read_evaluation
 from vlaprobe.probes.split import make_folds, rows_of
 

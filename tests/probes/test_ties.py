@@ -11,8 +11,9 @@ import pytest
 from vlaprobe.configs.train import TrainConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.probes import synthetic_data, train_on_data
+from vlaprobe.probes.bootstrap import nan_percentiles
 from vlaprobe.probes.evaluate import best_layer
-from vlaprobe.probes.metrics import nan_percentiles, summarize
+from vlaprobe.probes.metrics import summarize
 from vlaprobe.probes.results import EVALUATION_FILE, read_evaluation
 from vlaprobe.probes.ties import describe, layer_resamples, paired_differences, ranges, tie_set
 
