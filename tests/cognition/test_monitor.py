@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 from tests.cognition.scenes import APPROACH, BOWL2, CARRY, COOKIES, PLACED, PLATE, VOCAB, arrays
+from tests.probes.made import evaluation_with_split
 
 from vlaprobe.cli import main as cli_main
 from vlaprobe.cognition.monitor import (
@@ -26,7 +27,9 @@ from vlaprobe.configs.report import ReportConfig
 from vlaprobe.configs.train import ProbeConfig, TrainConfig
 from vlaprobe.pipeline import report
 from vlaprobe.probes import synthetic_data, train_on_data
-from vlaprobe.probes.probeset import FORMAT, FORMAT_VERSION, ProbeSet
+from vlaprobe.probes.probemeta import HeadMeta, ProbesMeta
+from vlaprobe.probes.probeset import ProbeSet
+from vlaprobe.probes.results import DroppedAtom, write_evaluation
 
 SETTLING = frozenset({f"should-move-towards({PLATE})"})
 STEPS = [APPROACH] * 6 + [CARRY] * 6 + [SETTLING] * 2 + [PLACED] * 6
@@ -71,7 +74,7 @@ def write_run(root: Path) -> tuple[Path, Path]:
         names = ATOMS[h]
         kept = [j for j in range(len(names)) if j + offset in varying]
         dropped = [
-            {"atom": names[j], "train_frequency": float(y[:, j + offset].mean()), "reason": "rare"}
+            DroppedAtom(names[j], float(y[:, j + offset].mean()), "rare")
             for j in range(len(names))
             if j not in kept
         ]
@@ -79,19 +82,13 @@ def write_run(root: Path) -> tuple[Path, Path]:
         for c, j in enumerate(kept):
             w[:, j + offset, c] = 10.0
         tensors[f"{h}.weight"], tensors[f"{h}.bias"] = w, torch.zeros(2, len(kept))
-        heads[h] = {
-            "atom_names": names,
-            "kept": [names[j] for j in kept],
-            "dropped": dropped,
-            "best_layer": 1,
-        }
-    pmeta = {
-        "format": FORMAT, "format_version": FORMAT_VERSION, "model_id": "fake", "pooling": "last_prompt",
-        "hidden_size": SIZE, "num_hidden_states": 2, "layers": [0, 1], "threshold": 0.5, "heads": heads,
-        "trained_on": {"split": "training split"},
-    }  # fmt: skip
+        heads[h] = HeadMeta(atom_names=names, kept=[names[j] for j in kept], dropped=dropped, best_layer=1)
+    pmeta = ProbesMeta(
+        model_id="fake", pooling="last_prompt", hidden_size=SIZE, num_hidden_states=2, layers=[0, 1],
+        threshold=0.5, heads=heads,
+    )  # fmt: skip
     probes = ProbeSet(pmeta, tensors).save(root / "probes")
-    (probes / "evaluation.json").write_text(json.dumps({"split": {"test_episodes": KEYS}}))
+    write_evaluation(probes, evaluation_with_split(KEYS, model_id="fake", layers=[0, 1], hidden_size=SIZE))
     return root / "store", probes
 
 
