@@ -14,10 +14,12 @@ from tests.probes.made import evaluation_with_split
 from vlaprobe.cli import main as cli_main
 from vlaprobe.cognition.monitor import (
     MONITOR_FILE,
+    MONITOR_FORMAT_VERSION,
     EpisodeFigures,
     gain_interval,
     goal_detection,
     monitor,
+    read_monitor,
     report_section,
 )
 from vlaprobe.collection.store import EpisodeInfo
@@ -25,6 +27,7 @@ from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.configs.monitor import MonitorConfig
 from vlaprobe.configs.report import ReportConfig
 from vlaprobe.configs.train import ProbeConfig, TrainConfig
+from vlaprobe.errors import VlaprobeError
 from vlaprobe.pipeline import report
 from vlaprobe.probes import synthetic_data, train_on_data
 from vlaprobe.probes.probemeta import HeadMeta, ProbesMeta
@@ -121,11 +124,33 @@ def test_monitor_compares_truth_and_probes(run: tuple[Path, Path]) -> None:
     low, high = p.belief_agreement_gain_95
     assert 0 < low <= p.belief_agreement - p.belief_agreement_step0 <= high
     assert p.flips_per_step == p.flips_per_step_debounced > 0
-    written = json.loads((probes / MONITOR_FILE).read_text())
-    assert (
-        written["probes"]["violations"]["left_right_converse"] == 1
-        and written["format"] == "vlaprobe-monitor"
-    )
+    written = read_monitor(probes)
+    assert written.probes.violations["left_right_converse"] == 1
+    assert json.dumps(written.to_json()) == json.dumps(result.to_json())  # the round trip (NaN included)
+
+
+def test_monitor_file_versions(run: tuple[Path, Path], tmp_path: Path) -> None:
+    """A newer or unknown monitor.json is refused with one line; a version-1 file (before false alarms) reads."""
+    store, probes = run
+    result = monitor(MonitorConfig(store=store, probes=probes, out=tmp_path))
+    path = tmp_path / MONITOR_FILE
+    data = json.loads(path.read_text())
+    assert data["format_version"] == MONITOR_FORMAT_VERSION
+    for change, match in (
+        ({"format_version": MONITOR_FORMAT_VERSION + 1}, f"version {MONITOR_FORMAT_VERSION + 1}"),
+        ({"format": "vlaprobe-evaluation"}, "not a vlaprobe monitor file"),
+    ):
+        path.write_text(json.dumps({**data, **change}))
+        with pytest.raises(VlaprobeError, match=match) as exc:
+            read_monitor(tmp_path)
+        assert "\n" not in str(exc.value)
+    old = {**data, "format_version": 1}  # what vlaprobe monitor wrote before false alarms were counted
+    del old["probes"]["goal_detection"]["false_alarms_per_100_steps"]
+    for e in old["per_episode"]:
+        del e["false_alarms"]
+    path.write_text(json.dumps(old))
+    read = read_monitor(tmp_path)
+    assert read.probes.goal_detection.false_alarms_per_100_steps is None and read.steps == result.steps
 
 
 def test_debouncing_removes_the_flicker(run: tuple[Path, Path], tmp_path: Path) -> None:

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 from vlaprobe.probes.results import (
+    BestLayer,
     Bootstrap,
     Controls,
     Dataset,
     Episodes,
     Evaluation,
     HeadResult,
+    Level,
+    MetricSummary,
     Split,
 )
 
@@ -48,4 +51,31 @@ def evaluation_with_split(
         config={},
         seeds={},
         versions={},
+    )
+
+
+def head_result(predicates: list[str], values: list[list[float]], best: int, layers: list[int]) -> HeadResult:
+    """A head whose per-predicate balanced accuracy is ``values`` (layers, predicates), interval [v - 0.05, v],
+    with one atom per predicate and ``best`` the index of its best layer."""
+    low = [[v - 0.05 for v in row] for row in values]
+    per_layer = [sum(row) / len(row) for row in values]
+    level = Level(value=values, low=low, high=values, defined=[[10] * len(row) for row in values])
+    summary = MetricSummary(
+        atom=level,
+        predicate=level,
+        layer=Level(value=per_layer, low=per_layer, high=per_layer, defined=[10] * len(values)),
+    )
+    atoms = [f"{p}(a)" for p in predicates]
+    v = per_layer[best]
+    return HeadResult(
+        atoms=atoms,
+        predicates=list(predicates),
+        predicate_atoms={p: [a] for p, a in zip(predicates, atoms, strict=True)},
+        skipped_predicates=[],
+        dropped=[],
+        train_frequency=[0.5] * len(atoms),
+        test_frequency=[0.5] * len(atoms),
+        best=BestLayer(layers[best], best, "balanced_accuracy", v, v, v, "highest value"),
+        probe={"balanced_accuracy": summary},
+        baseline={"balanced_accuracy": summary},
     )
