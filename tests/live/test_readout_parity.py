@@ -24,7 +24,9 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, np.ndarray]
         num_tasks=2, episodes_per_task=3, steps_per_episode=12, num_layers=4, hidden_size=16, num_object=8,
         num_action=3, signal=6.0, seed=3,
     )  # fmt: skip
-    cfg = TrainConfig(bootstrap=10, auprc_bootstrap=0, shuffled_control=False, probe=ProbeConfig(c_grid=(0.1, 1.0)))
+    cfg = TrainConfig(
+        bootstrap=10, auprc_bootstrap=0, shuffled_control=False, probe=ProbeConfig(c_grid=(0.1, 1.0))
+    )
     out = train_on_data(data, cfg, tmp_path_factory.mktemp("parity") / "probes")
     return out, data.hidden.float().numpy()  # (layers, steps, hidden)
 

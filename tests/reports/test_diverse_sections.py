@@ -53,5 +53,7 @@ def test_hypotheses_file_and_report_sections(probes: Path, capsys: pytest.Captur
 def test_hypotheses_refuses_bad_input(probes: Path) -> None:
     with pytest.raises(VlaprobeError, match="--bootstrap must be at least 10"):
         hypotheses(HypothesesConfig(probes=probes, bootstrap=2))
-    with pytest.raises(VlaprobeError, match="no evaluation.json in .*; pass the folder written by vlaprobe train"):
+    with pytest.raises(
+        VlaprobeError, match=r"no evaluation\.json in .*; pass the folder written by vlaprobe train"
+    ):
         hypotheses(HypothesesConfig(probes=probes.parent / "none"))
