@@ -1,7 +1,7 @@
 """`vlaprobe monitor`: measure the cognition on stored episodes, fed by ground truth and by the probes.
 
 Each episode (default: the probes' held-out test episodes) runs twice through a fresh :class:`Cognition`: on
-the stored ground-truth atoms and on the probes' predictions (each head at its best layer, not-probed atoms at
+the stored ground-truth atoms and on the probes' predictions (each head at its default layer, not-probed atoms at
 their training majority). The figures compare the two runs step by step; ``monitor.json`` holds them with the
 per-rule and per-episode details.
 
