@@ -257,7 +257,7 @@ class Evaluation:
     heads: dict[str, HeadResult]
     config: JsonObject
     seeds: dict[str, int]
-    versions: dict[str, str]
+    versions: dict[str, str | None]
     skipped_heads: dict[str, SkippedHead] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=dict)
     format: str = FORMAT
