@@ -112,7 +112,8 @@ class ProbeReadout:
     def _probs(self, head: _Head, x: np.ndarray) -> np.ndarray:
         """Probabilities of the kept atoms from one hidden state (hidden,) or (7, hidden) at the head's layer:
         ``ProbeSet.probabilities``' operations exactly."""
-        z = self.probes.logits(torch.from_numpy(np.asarray(x, dtype=np.float32)), head.name, head.layer)
+        x = torch.from_numpy(np.array(x, dtype=np.float32))  # a copy: stored rows may be read-only
+        z = self.probes.logits(x, head.name, head.layer)
         return torch.sigmoid(z).numpy()
 
     def _fill(self, head: _Head, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
