@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from vlaprobe.errors import VlaprobeError
 
@@ -112,6 +111,8 @@ class ProbeReadout:
     def _probs(self, head: _Head, x: np.ndarray) -> np.ndarray:
         """Probabilities of the kept atoms from one hidden state (hidden,) or (7, hidden) at the head's layer:
         ``ProbeSet.probabilities``' operations exactly."""
+        import torch  # here, not at the top: the cognition imports without torch (the probe set needs it)
+
         x = torch.from_numpy(np.array(x, dtype=np.float32))  # a copy: stored rows may be read-only
         z = self.probes.logits(x, head.name, head.layer)
         return torch.sigmoid(z).numpy()
