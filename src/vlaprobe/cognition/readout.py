@@ -113,8 +113,8 @@ class ProbeReadout:
         ``ProbeSet.probabilities``' operations exactly."""
         import torch  # here, not at the top: the cognition imports without torch (the probe set needs it)
 
-        x = torch.from_numpy(np.array(x, dtype=np.float32))  # a copy: stored rows may be read-only
-        z = self.probes.logits(x, head.name, head.layer)
+        row = torch.from_numpy(np.array(x, dtype=np.float32))  # a copy: stored rows may be read-only
+        z = self.probes.logits(row, head.name, head.layer)
         return torch.sigmoid(z).numpy()
 
     def _fill(self, head: _Head, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
