@@ -43,24 +43,18 @@ def random_probes(folder: Path, model_id: str, layers: int, hidden: int, atoms: 
     import torch
 
     from vlaprobe.probes import ProbeSet
-    from vlaprobe.probes.probeset import FORMAT, FORMAT_VERSION
+    from vlaprobe.probes.probemeta import HeadMeta, ProbesMeta
 
     g = torch.Generator().manual_seed(0)
     heads, tensors = {}, {}
     for h, names in atoms.items():
-        heads[h] = {
-            "atom_names": names,
-            "kept": names,
-            "dropped": [],
-            "best_layer": layers // 2,
-            "best_metric": "f1",
-        }
+        heads[h] = HeadMeta(atom_names=names, kept=names, best_layer=layers // 2, best_metric="f1")
         tensors[f"{h}.weight"] = torch.randn(1, hidden, len(names), generator=g) / hidden**0.5
         tensors[f"{h}.bias"] = torch.zeros(1, len(names))
-    meta = {
-        "format": FORMAT, "format_version": FORMAT_VERSION, "model_id": model_id, "pooling": "last_prompt",
-        "hidden_size": hidden, "num_hidden_states": layers, "layers": [layers // 2], "threshold": 0.5, "heads": heads,
-    }  # fmt: skip
+    meta = ProbesMeta(
+        model_id=model_id, pooling="last_prompt", hidden_size=hidden, num_hidden_states=layers,
+        layers=[layers // 2], threshold=0.5, heads=heads,
+    )  # fmt: skip
     ProbeSet(meta, tensors).save(folder)
     return ProbeSet.load(folder)
 

@@ -9,14 +9,17 @@ import numpy as np
 import pytest
 import torch
 from tests.cognition.scenes import APPROACH, BOWL2, CARRY, COOKIES, PLACED, PLATE, VOCAB, arrays
+from tests.probes.made import evaluation_with_split
 
 from vlaprobe.cli import main as cli_main
 from vlaprobe.cognition.monitor import (
     MONITOR_FILE,
+    MONITOR_FORMAT_VERSION,
     EpisodeFigures,
     gain_interval,
     goal_detection,
     monitor,
+    read_monitor,
     report_section,
 )
 from vlaprobe.collection.store import EpisodeInfo
@@ -24,9 +27,12 @@ from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.configs.monitor import MonitorConfig
 from vlaprobe.configs.report import ReportConfig
 from vlaprobe.configs.train import ProbeConfig, TrainConfig
+from vlaprobe.errors import VlaprobeError
 from vlaprobe.pipeline import report
 from vlaprobe.probes import synthetic_data, train_on_data
-from vlaprobe.probes.probeset import FORMAT, FORMAT_VERSION, ProbeSet
+from vlaprobe.probes.probemeta import HeadMeta, ProbesMeta
+from vlaprobe.probes.probeset import ProbeSet
+from vlaprobe.probes.results import DroppedAtom, write_evaluation
 
 SETTLING = frozenset({f"should-move-towards({PLATE})"})
 STEPS = [APPROACH] * 6 + [CARRY] * 6 + [SETTLING] * 2 + [PLACED] * 6
@@ -71,7 +77,7 @@ def write_run(root: Path) -> tuple[Path, Path]:
         names = ATOMS[h]
         kept = [j for j in range(len(names)) if j + offset in varying]
         dropped = [
-            {"atom": names[j], "train_frequency": float(y[:, j + offset].mean()), "reason": "rare"}
+            DroppedAtom(names[j], float(y[:, j + offset].mean()), "rare")
             for j in range(len(names))
             if j not in kept
         ]
@@ -79,19 +85,13 @@ def write_run(root: Path) -> tuple[Path, Path]:
         for c, j in enumerate(kept):
             w[:, j + offset, c] = 10.0
         tensors[f"{h}.weight"], tensors[f"{h}.bias"] = w, torch.zeros(2, len(kept))
-        heads[h] = {
-            "atom_names": names,
-            "kept": [names[j] for j in kept],
-            "dropped": dropped,
-            "best_layer": 1,
-        }
-    pmeta = {
-        "format": FORMAT, "format_version": FORMAT_VERSION, "model_id": "fake", "pooling": "last_prompt",
-        "hidden_size": SIZE, "num_hidden_states": 2, "layers": [0, 1], "threshold": 0.5, "heads": heads,
-        "trained_on": {"split": "training split"},
-    }  # fmt: skip
+        heads[h] = HeadMeta(atom_names=names, kept=[names[j] for j in kept], dropped=dropped, best_layer=1)
+    pmeta = ProbesMeta(
+        model_id="fake", pooling="last_prompt", hidden_size=SIZE, num_hidden_states=2, layers=[0, 1],
+        threshold=0.5, heads=heads,
+    )  # fmt: skip
     probes = ProbeSet(pmeta, tensors).save(root / "probes")
-    (probes / "evaluation.json").write_text(json.dumps({"split": {"test_episodes": KEYS}}))
+    write_evaluation(probes, evaluation_with_split(KEYS, model_id="fake", layers=[0, 1], hidden_size=SIZE))
     return root / "store", probes
 
 
@@ -124,11 +124,33 @@ def test_monitor_compares_truth_and_probes(run: tuple[Path, Path]) -> None:
     low, high = p.belief_agreement_gain_95
     assert 0 < low <= p.belief_agreement - p.belief_agreement_step0 <= high
     assert p.flips_per_step == p.flips_per_step_debounced > 0
-    written = json.loads((probes / MONITOR_FILE).read_text())
-    assert (
-        written["probes"]["violations"]["left_right_converse"] == 1
-        and written["format"] == "vlaprobe-monitor"
-    )
+    written = read_monitor(probes)
+    assert written.probes.violations["left_right_converse"] == 1
+    assert json.dumps(written.to_json()) == json.dumps(result.to_json())  # the round trip (NaN included)
+
+
+def test_monitor_file_versions(run: tuple[Path, Path], tmp_path: Path) -> None:
+    """A newer or unknown monitor.json is refused with one line; a version-1 file (before false alarms) reads."""
+    store, probes = run
+    result = monitor(MonitorConfig(store=store, probes=probes, out=tmp_path))
+    path = tmp_path / MONITOR_FILE
+    data = json.loads(path.read_text())
+    assert data["format_version"] == MONITOR_FORMAT_VERSION
+    for change, match in (
+        ({"format_version": MONITOR_FORMAT_VERSION + 1}, f"version {MONITOR_FORMAT_VERSION + 1}"),
+        ({"format": "vlaprobe-evaluation"}, "not a vlaprobe monitor file"),
+    ):
+        path.write_text(json.dumps({**data, **change}))
+        with pytest.raises(VlaprobeError, match=match) as exc:
+            read_monitor(tmp_path)
+        assert "\n" not in str(exc.value)
+    old = {**data, "format_version": 1}  # what vlaprobe monitor wrote before false alarms were counted
+    del old["probes"]["goal_detection"]["false_alarms_per_100_steps"]
+    for e in old["per_episode"]:
+        del e["false_alarms"]
+    path.write_text(json.dumps(old))
+    read = read_monitor(tmp_path)
+    assert read.probes.goal_detection.false_alarms_per_100_steps is None and read.steps == result.steps
 
 
 def test_debouncing_removes_the_flicker(run: tuple[Path, Path], tmp_path: Path) -> None:

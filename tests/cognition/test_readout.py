@@ -10,7 +10,9 @@ import torch
 
 from vlaprobe.cognition import ProbeReadout
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.probes.probeset import FORMAT, FORMAT_VERSION, ProbeSet
+from vlaprobe.probes.probemeta import HeadMeta, ProbesMeta
+from vlaprobe.probes.probeset import ProbeSet
+from vlaprobe.probes.results import DroppedAtom
 
 LAYERS, HIDDEN = 3, 16
 NAMES = {"object": [f"on(o{i},t)" for i in range(6)], "action": ["grasped(o0)", "grasped(o1)", "grasped(o2)"]}
@@ -23,15 +25,13 @@ def probe_set(pooling: str = "last_prompt", standardized: bool = True) -> ProbeS
     heads, tensors = {}, {}
     for h, names in NAMES.items():
         kept = KEPT[h]
-        heads[h] = {
-            "atom_names": names,
-            "kept": [names[j] for j in kept],
-            "kept_index": kept,
-            "dropped": [
-                {"atom": names[j], "train_frequency": f, "reason": "constant"} for j, f in FREQ[h].items()
-            ],
-            "best_layer": 1 if h == "object" else 2,
-        }
+        heads[h] = HeadMeta(
+            atom_names=names,
+            kept=[names[j] for j in kept],
+            kept_index=kept,
+            dropped=[DroppedAtom(names[j], f, "constant") for j, f in FREQ[h].items()],
+            best_layer=1 if h == "object" else 2,
+        )
         tensors[f"{h}.weight"] = torch.tensor(
             rng.standard_normal((LAYERS, HIDDEN, len(kept))), dtype=torch.float32
         )
@@ -39,17 +39,15 @@ def probe_set(pooling: str = "last_prompt", standardized: bool = True) -> ProbeS
         if standardized:
             tensors[f"{h}.mean"] = torch.tensor(rng.standard_normal((LAYERS, HIDDEN)), dtype=torch.float32)
             tensors[f"{h}.std"] = torch.tensor(rng.random((LAYERS, HIDDEN)) + 0.5, dtype=torch.float32)
-    meta = {
-        "format": FORMAT,
-        "format_version": FORMAT_VERSION,
-        "model_id": "m",
-        "pooling": pooling,
-        "hidden_size": HIDDEN,
-        "num_hidden_states": LAYERS,
-        "layers": list(range(LAYERS)),
-        "threshold": 0.5,
-        "heads": heads,
-    }
+    meta = ProbesMeta(
+        model_id="m",
+        pooling=pooling,
+        hidden_size=HIDDEN,
+        num_hidden_states=LAYERS,
+        layers=list(range(LAYERS)),
+        threshold=0.5,
+        heads=heads,
+    )
     return ProbeSet(meta, tensors)
 
 

@@ -10,7 +10,13 @@ import numpy as np
 import pytest
 import zarr
 
-from vlaprobe.collection.store import FORMAT_VERSION, ActivationStore, EpisodeInfo, episode_key
+from vlaprobe.collection.store import (
+    FORMAT_VERSION,
+    ActivationStore,
+    EpisodeInfo,
+    episode_key,
+    read_store_meta,
+)
 from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.errors import VlaprobeError
 
@@ -238,6 +244,34 @@ def test_update_meta_keeps_the_rest(tmp_path: Path) -> None:
         w.update_meta(runs=[{"command": "a"}])
     meta = ActivationStore.open(path).meta
     assert meta["runs"] == [{"command": "a"}] and meta["extra"] == "kept" and meta["pooling"] == "last_prompt"
+
+
+def test_typed_metadata_reads_what_the_writer_wrote_and_defaults_what_older_stores_lack(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "store"
+    made = make_meta(
+        driver="dagger", instructions={"0": "put the bowl on the plate"}, created="2026-12-03T10:00:00"
+    )
+    with StoreWriter.open(path, made):
+        pass
+    meta = read_store_meta(path)
+    assert meta == ActivationStore.open(path).metadata and meta.format_version == FORMAT_VERSION
+    assert (meta.driver, meta.instructions, meta.perturb) == (
+        "dagger",
+        {"0": "put the bowl on the plate"},
+        None,
+    )
+    assert meta.atom_names == ActivationStore.open(path).atom_names and meta.created == made["created"]
+    older = tmp_path / "older"  # a store written before the driver and the instructions were recorded
+    with StoreWriter.open(older, make_meta()):
+        pass
+    doc = json.loads((older / "zarr.json").read_text())
+    for key in ("driver", "instructions", "created"):
+        doc["attributes"].pop(key, None)
+    (older / "zarr.json").write_text(json.dumps(doc))
+    meta = read_store_meta(older)
+    assert (meta.driver, meta.instructions, meta.created) == (None, {}, "")
 
 
 def test_success_step_round_trips_and_older_episodes_read_it_as_their_last_row() -> None:

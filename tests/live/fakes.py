@@ -199,35 +199,32 @@ def random_probes(
     import torch
 
     from vlaprobe.probes import ProbeSet
-    from vlaprobe.probes.probeset import FORMAT, FORMAT_VERSION
+    from vlaprobe.probes.probemeta import HeadMeta, ProbesMeta
+    from vlaprobe.probes.results import DroppedAtom
 
     g = torch.Generator().manual_seed(seed)
     heads, tensors = {}, {}
     for h, names in atoms.items():
         kept = [a for i, a in enumerate(names) if i % 5 != 4]
-        dropped = [
-            {"atom": a, "reason": "near-constant", "train_frequency": 0.0} for a in names if a not in kept
-        ]
-        heads[h] = {
-            "atom_names": names,
-            "kept": kept,
-            "dropped": dropped,
-            "best_layer": layer,
-            "best_metric": "f1",
-        }
+        dropped = [DroppedAtom(a, 0.0, "near-constant") for a in names if a not in kept]
+        heads[h] = HeadMeta(
+            atom_names=names,
+            kept=kept,
+            dropped=dropped,
+            best_layer=layer,
+            best_metric="f1",
+        )
         tensors[f"{h}.weight"] = torch.randn(1, hidden_size, len(kept), generator=g) / hidden_size**0.5
         tensors[f"{h}.bias"] = torch.zeros(1, len(kept))
-    meta = {
-        "format": FORMAT,
-        "format_version": FORMAT_VERSION,
-        "model_id": model_id,
-        "pooling": "last_prompt",
-        "hidden_size": hidden_size,
-        "num_hidden_states": num_hidden_states,
-        "layers": [layer],
-        "threshold": 0.5,
-        "heads": heads,
-    }
+    meta = ProbesMeta(
+        model_id=model_id,
+        pooling="last_prompt",
+        hidden_size=hidden_size,
+        num_hidden_states=num_hidden_states,
+        layers=[layer],
+        threshold=0.5,
+        heads=heads,
+    )
     return ProbeSet(meta, tensors).save(folder)
 
 

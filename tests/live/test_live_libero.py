@@ -128,13 +128,15 @@ def test_cli_starts_in_seconds_and_prints_the_address(probes: Path, tmp_path: Pa
 
 def test_the_trained_default_drives_live(probes: Path, tmp_path: Path) -> None:
     """`vlaprobe serve --driver policy` path: tiny-libero's own actions step the simulator, every step streamed."""
-    meta = json.loads((probes / "probes.json").read_text())
-    meta["model_id"] = "tiny-libero"
+    from vlaprobe.probes.probemeta import read_probes_meta, write_probes_meta
+
+    meta = read_probes_meta(probes)
+    meta.model_id = "tiny-libero"
     own = tmp_path / "probes"
     own.mkdir()
     for f in probes.iterdir():
         (own / f.name).write_bytes(f.read_bytes())
-    (own / "probes.json").write_text(json.dumps(meta))
+    write_probes_meta(own, meta)
     cfg = ServeConfig(probes=own, device="cpu", driver="policy", recordings=tmp_path / "live")
     assert cfg.model == "tiny-libero"  # the shipped default observer
     app = create_app(build_engine(cfg, load_probes(cfg)), limits_of(cfg, None))

@@ -7,10 +7,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tests.probes.made import evaluation_with_split, head_result
 
 from vlaprobe.configs.train import SplitConfig, TrainConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.probes import synthetic_data, train_on_data
+from vlaprobe.probes.results import write_evaluation
 from vlaprobe.probes.split import check_no_leak, leave_one_task_out, make_folds, rows_of
 
 
@@ -54,14 +56,10 @@ def test_training_with_leave_one_task_out_tests_every_episode_in_its_tasks_fold(
 
 
 def _evaluation(folder: Path, best: int, values: list[list[float]], predicates: list[str]) -> Path:
-    folder.mkdir()
-    level = {"value": values, "low": [[v - 0.05 for v in row] for row in values], "high": values}
-    head = {
-        "best": {"index": best},
-        "predicates": predicates,
-        "probe": {"balanced_accuracy": {"predicate": level}},
-    }
-    (folder / "evaluation.json").write_text(json.dumps({"heads": {"object": head}}))
+    """A probe folder whose evaluation.json (written by write_evaluation) has these per-predicate figures."""
+    layers = list(range(len(values)))
+    head = head_result(predicates, values, best, layers)
+    write_evaluation(folder, evaluation_with_split(["e0"], layers=layers, heads={"object": head}))
     return folder
 
 

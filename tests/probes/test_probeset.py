@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.probes.probemeta import HeadMeta, ProbesMeta
 from vlaprobe.probes.probeset import META_FILE, WEIGHTS_FILE, ProbeSet
 
 
@@ -26,20 +27,18 @@ def make_probes(standardized: bool = False) -> ProbeSet:
         for h in ("object", "action"):
             tensors[f"{h}.mean"] = torch.randn(3, hidden, generator=g)
             tensors[f"{h}.std"] = torch.rand(3, hidden, generator=g) + 0.5
-    meta = {
-        "format": "vlaprobe-probes",
-        "format_version": 1,
-        "model_id": "tiny-openvla",
-        "pooling": "last_prompt",
-        "hidden_size": hidden,
-        "num_hidden_states": 3,
-        "layers": layers,
-        "threshold": 0.5,
-        "heads": {
-            "object": {"kept": ["on(a,b)", "open(c)"], "best_layer": 2, "best_metric": "accuracy"},
-            "action": {"kept": ["grasped(a)"], "best_layer": 1, "best_metric": "accuracy"},
+    meta = ProbesMeta(
+        model_id="tiny-openvla",
+        pooling="last_prompt",
+        hidden_size=hidden,
+        num_hidden_states=3,
+        layers=layers,
+        threshold=0.5,
+        heads={
+            "object": HeadMeta(kept=["on(a,b)", "open(c)"], best_layer=2, best_metric="accuracy"),
+            "action": HeadMeta(kept=["grasped(a)"], best_layer=1, best_metric="accuracy"),
         },
-    }
+    )
     return ProbeSet(meta, tensors)
 
 
@@ -67,9 +66,9 @@ def test_round_trip_and_prediction_match_the_weights(tmp_path: Path, standardize
     assert loaded.predict(hidden[0], layer=0) == loaded.predict(hidden, layer=0)
 
 
-def test_single_hidden_state_needs_a_layer_when_best_layers_differ(tmp_path: Path) -> None:
+def test_single_hidden_state_needs_a_layer_when_default_layers_differ(tmp_path: Path) -> None:
     probes = make_probes()
-    with pytest.raises(VlaprobeError, match="best layers differ"):
+    with pytest.raises(VlaprobeError, match="default layers differ"):
         probes.predict(torch.randn(8))
     assert set(probes.predict(torch.randn(8), head="action")) == {"grasped(a)"}
 
@@ -110,6 +109,6 @@ def test_not_a_probe_folder_and_damaged_files(tmp_path: Path) -> None:
 
 def test_action_tokens_pooling_averages_the_token_positions() -> None:
     probes = make_probes()
-    probes.meta["pooling"] = "action_tokens"
+    probes.meta.pooling = "action_tokens"
     tokens = torch.randn(3, 7, 8)
     assert probes.probabilities(tokens) == probes.probabilities(tokens.mean(1))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from pathlib import Path
 
@@ -14,7 +13,8 @@ from vlaprobe.cli import main
 from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.configs.stores import CompareStoresConfig
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.probes.store_compare import compare_stores
+from vlaprobe.probes.probemeta import HeadMeta, ProbesMeta, write_probes_meta
+from vlaprobe.probes.store_compare import compare_stores, read_store_comparison
 from vlaprobe.reports.page import _environment
 from vlaprobe.reports.sections import store_comparison_section
 
@@ -77,14 +77,14 @@ def test_command_writes_the_report_section(
     stores: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     probes = tmp_path / "probes"
-    probes.mkdir()
-    (probes / "probes.json").write_text("{}")
+    head = HeadMeta(kept=["on(a,b)"], best_layer=0)
+    write_probes_meta(probes, ProbesMeta("m", "last_prompt", 4, 1, [0], 0.5, {"object": head}))
     args = ["compare-stores", *map(str, stores), "--names", "fixed", "sampled", "--bootstrap", "20"]
     assert main([*args, "--probes", str(probes)]) == 0
     out = capsys.readouterr().out
     assert "fixed:" in out and "minus fixed: majority +0.000" in out and "task_time -0.500" in out
-    saved = json.loads((probes / "store_comparison.json").read_text())
-    assert [s["name"] for s in saved["stores"]] == ["fixed", "sampled"]
+    saved = read_store_comparison(probes)
+    assert [s.name for s in saved.stores] == ["fixed", "sampled"]
     section = store_comparison_section(probes)
     assert section is not None and section.template == "store_comparison.html"
     html = _environment().get_template(section.template).render(section=section, data=section.data)

@@ -15,6 +15,7 @@ from vlaprobe.configs.train import ProbeConfig, SplitConfig, TrainConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.probes import ProbeSet, synthetic_data, train_on_data
 from vlaprobe.probes.data import ProbeData
+from vlaprobe.probes.probemeta import read_probes_meta
 
 FAST = dict(bootstrap=200, auprc_bootstrap=20)
 
@@ -45,7 +46,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> dict:
         "cfg": cfg,
         "out": out,
         "ev": json.loads((out / "evaluation.json").read_text()),
-        "meta": json.loads((out / "probes.json").read_text()),
+        "meta": read_probes_meta(out),
     }
 
 
@@ -60,8 +61,8 @@ def test_output_folder_is_complete(run: dict) -> None:
     cfg = config_from_dict(TrainConfig, json.loads((out / "config.json").read_text()))
     assert cfg == run["cfg"]  # the recorded config reproduces the run
     meta = run["meta"]
-    assert meta["model_id"] == "synthetic" and meta["config"]["probe"]["tol"] == run["cfg"].probe.tol
-    assert set(meta["seeds"]) == {"split", "probe", "shuffle", "bootstrap"}
+    assert meta.model_id == "synthetic" and meta.config["probe"]["tol"] == run["cfg"].probe.tol
+    assert set(meta.seeds) == {"split", "probe", "shuffle", "bootstrap"}
 
 
 def test_split_is_by_episode_and_stratified(run: dict) -> None:
@@ -122,7 +123,11 @@ def test_probes_beat_controls_and_best_layer_is_recorded(run: dict) -> None:
     assert best["metric"] == "balanced_accuracy"
     bal = np.array(obj["probe"]["balanced_accuracy"]["layer"]["value"])
     assert best["layer"] == ev["layers"][int(np.argmax(bal))]
-    assert meta["heads"]["object"]["best_layer"] == best["layer"]
+    head = meta.heads["object"]
+    assert head.best_layer == best["layer"] and head.best_metric == best["metric"]
+    assert head.tied_layers == sorted({*best["tied"], best["layer"]}) and head.default_layer == min(
+        head.tied_layers
+    )
     assert ev["controls"]["observer"]["model_id"] == "random-init"
 
 
@@ -136,7 +141,7 @@ def test_saved_probes_predict_like_the_evaluation(run: dict) -> None:
     names = probes.atoms(head)
     cols = [data.atom_names[head].index(a) for a in names]
     truth = data.labels[head][rows][:, cols]
-    pred = np.array([[probes.predict(data.hidden[:, r], head=head)[a] for a in names] for r in rows])
+    pred = np.array([[probes.predict(data.hidden[:, r], layer, head)[a] for a in names] for r in rows])
     accuracy = (pred == truth).mean()
     i = ev["layers"].index(layer)
     assert accuracy == pytest.approx(
@@ -151,7 +156,7 @@ def test_kfold_tests_every_episode_once_and_refits_on_all(tmp_path: Path) -> Non
     ev = json.loads((out / "evaluation.json").read_text())
     assert sorted(ev["split"]["test_episodes"]) == sorted(data.episode_keys)
     assert ev["heads"]["object"]["control"] is None
-    assert json.loads((out / "probes.json").read_text())["trained_on"]["split"].startswith("all episodes")
+    assert read_probes_meta(out).trained_on.split.startswith("all episodes")
 
 
 def test_bad_requests_are_one_line_errors(tmp_path: Path) -> None:
@@ -244,7 +249,7 @@ def test_saved_and_loaded_probes_equal_the_trained_ones(
     )  # fmt: skip
     out = train_on_data(data, cfg, tmp_path / "p")
     probes = ProbeSet.load(out)
-    assert probes.heads == list(heads) and probes.meta["standardized"] is standardize
+    assert probes.heads == list(heads) and probes.meta.standardized is standardize
     assert all((f"{h}.mean" in probes.tensors) is standardize for h in heads)
     ev = json.loads((out / "evaluation.json").read_text())
     rows = np.flatnonzero(
@@ -253,8 +258,9 @@ def test_saved_and_loaded_probes_equal_the_trained_ones(
     for h in heads:
         names = probes.atoms(h)
         cols = [data.atom_names[h].index(a) for a in names]
-        i = ev["layers"].index(probes.best_layer(h))
-        live = np.array([[probes.predict(data.hidden[:, r], head=h)[a] for a in names] for r in rows])
+        layer = probes.best_layer(h)
+        i = ev["layers"].index(layer)
+        live = np.array([[probes.predict(data.hidden[:, r], layer, h)[a] for a in names] for r in rows])
         accuracy = (live == data.labels[h][rows][:, cols]).mean()
         offline = np.nanmean(np.array(ev["heads"][h]["probe"]["accuracy"]["atom"]["value"][i], float))
         assert accuracy == pytest.approx(offline, abs=1e-4)  # readout applies the saved standardisation

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import pytest
@@ -14,7 +13,7 @@ from vlaprobe.configs.report import ReportConfig
 from vlaprobe.configs.train import ProbeConfig, TrainConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.probes import train as train_module
-from vlaprobe.probes.hypotheses_run import hypotheses
+from vlaprobe.probes.hypotheses_run import hypotheses, read_hypotheses
 from vlaprobe.probes.results import read_evaluation
 from vlaprobe.probes.ties import describe
 from vlaprobe.reports.report import write_report
@@ -45,11 +44,11 @@ def test_hypotheses_file_and_report_sections(probes: Path, capsys: pytest.Captur
     assert "H1 (object states are encoded in earlier layers" in printed and "H2 (" in printed
     for head, h in read_evaluation(probes).heads.items():  # the layers tied with the best, named
         assert f"evaluation.json: {describe(h.best.layer, h.best.tied)}" in printed, head
-    saved = json.loads((probes / "hypotheses.json").read_text())
-    assert saved["resamples"] == 50 and set(saved["heads"]) == {"object", "action"}
-    assert [v["hypothesis"] for v in saved["verdicts"]] == ["H1", "H2"]
+    saved = read_hypotheses(probes)
+    assert saved.resamples == 50 and set(saved.heads) == {"object", "action"}
+    assert [v.hypothesis for v in saved.verdicts] == ["H1", "H2"]
     again = hypotheses(HypothesesConfig(probes=probes, bootstrap=50))  # same seed: same answer
-    assert [v.sentence for v in again.verdicts] == [v["sentence"] for v in saved["verdicts"]]
+    assert again == saved
     page = write_report(ReportConfig(probes=probes, out=probes.parent / "report")).read_text()
     assert 'id="hypotheses-section"' in page and "H1</strong>" in page
     assert 'id="diversity-section"' in page and "distinct state vectors" in page
@@ -58,5 +57,7 @@ def test_hypotheses_file_and_report_sections(probes: Path, capsys: pytest.Captur
 def test_hypotheses_refuses_bad_input(probes: Path) -> None:
     with pytest.raises(VlaprobeError, match="--bootstrap must be at least 10"):
         hypotheses(HypothesesConfig(probes=probes, bootstrap=2))
-    with pytest.raises(VlaprobeError, match="cannot read"):
+    with pytest.raises(
+        VlaprobeError, match=r"no evaluation\.json in .*; pass the folder written by vlaprobe train"
+    ):
         hypotheses(HypothesesConfig(probes=probes.parent / "none"))

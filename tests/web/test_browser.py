@@ -46,7 +46,9 @@ def make_tiny_probes(folder: Path) -> None:
     from vlaprobe.configs.policy import PolicyConfig
     from vlaprobe.envs import make_env
     from vlaprobe.policies import make_policy
+    from vlaprobe.probes.probemeta import HeadMeta, ProbesMeta
     from vlaprobe.probes.probeset import ProbeSet
+    from vlaprobe.probes.results import DroppedAtom
     from vlaprobe.symbols.vocabulary import build_vocabulary
 
     policy = make_policy(PolicyConfig("tiny", device="cpu"))
@@ -62,29 +64,27 @@ def make_tiny_probes(folder: Path) -> None:
     tensors, heads = {}, {}
     for head, atoms in (("object", vocab.object_atoms), ("action", vocab.action_atoms)):
         kept = [a for i, a in enumerate(atoms) if i % 7 != 6]
-        dropped = [{"atom": a, "train_frequency": 0.0, "reason": "constant"} for a in atoms if a not in kept]
+        dropped = [DroppedAtom(a, 0.0, "constant") for a in atoms if a not in kept]
         tensors[f"{head}.weight"] = torch.randn(1, hidden_size, len(kept), generator=g) / hidden_size**0.5
         tensors[f"{head}.bias"] = torch.zeros(1, len(kept))
-        heads[head] = {
-            "atom_names": list(atoms),
-            "kept": kept,
-            "kept_index": [atoms.index(a) for a in kept],
-            "dropped": dropped,
-            "best_layer": layers[0],
-            "best_metric": "accuracy",
-        }
-    meta = {
-        "format": "vlaprobe-probes",
-        "format_version": 1,
-        "model_id": policy.model_id,
-        "pooling": policy.pooling,
-        "hidden_size": hidden_size,
-        "num_hidden_states": num_hidden_states,
-        "layers": layers,
-        "threshold": 0.5,
-        "heads": heads,
-        "standardized": False,
-    }
+        heads[head] = HeadMeta(
+            atom_names=list(atoms),
+            kept=kept,
+            kept_index=[atoms.index(a) for a in kept],
+            dropped=dropped,
+            best_layer=layers[0],
+            best_metric="accuracy",
+        )
+    meta = ProbesMeta(
+        model_id=policy.model_id,
+        pooling=policy.pooling,
+        hidden_size=hidden_size,
+        num_hidden_states=num_hidden_states,
+        layers=layers,
+        threshold=0.5,
+        heads=heads,
+        standardized=False,
+    )
     ProbeSet(meta, tensors).save(folder)
 
 

@@ -1,7 +1,7 @@
 """`vlaprobe monitor`: measure the cognition on stored episodes, fed by ground truth and by the probes.
 
 Each episode (default: the probes' held-out test episodes) runs twice through a fresh :class:`Cognition`: on
-the stored ground-truth atoms and on the probes' predictions (each head at its best layer, not-probed atoms at
+the stored ground-truth atoms and on the probes' predictions (each head at its default layer, not-probed atoms at
 their training majority). The figures compare the two runs step by step; ``monitor.json`` holds them with the
 per-rule and per-episode details.
 
@@ -33,7 +33,6 @@ if TYPE_CHECKING:
     from vlaprobe.reports.sections import Section
 
 MONITOR_FILE = "monitor.json"
-EVALUATION_FILE = "evaluation.json"
 
 
 @dataclass(frozen=True)
@@ -123,7 +122,48 @@ class MonitorResult:
         }
 
     def to_json(self) -> JsonObject:
-        return {"format": "vlaprobe-monitor", "format_version": 2, **asdict(self)}
+        """``monitor.json``: this result with its format and version (:func:`write_monitor`)."""
+        return {"format": MONITOR_FORMAT, "format_version": MONITOR_FORMAT_VERSION, **asdict(self)}
+
+
+MONITOR_FORMAT = "vlaprobe-monitor"
+MONITOR_FORMAT_VERSION = 2
+"""Version 2 added goal detection's false alarms and episode counts (and each episode's ``false_alarms``); a
+version-1 file is read with those at their defaults (an episode's false alarms as 0: not counted then)."""
+
+
+def write_monitor(folder: str | Path, result: MonitorResult) -> Path:
+    """Write ``<folder>/monitor.json`` atomically; return its path."""
+    path = Path(folder) / MONITOR_FILE
+    write_atomic(path, json.dumps(result.to_json(), indent=1) + "\n")
+    return path
+
+
+def read_monitor(folder: str | Path) -> MonitorResult:
+    """Read ``<folder>/monitor.json``; a one-line error if it is missing, damaged or of an unknown version."""
+    import dacite
+
+    path = Path(folder) / MONITOR_FILE
+    hint = "run vlaprobe monitor again"
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        raise VlaprobeError(f"cannot read {path}; {hint}") from None
+    if not isinstance(data, dict) or data.pop("format", MONITOR_FORMAT) != MONITOR_FORMAT:
+        raise VlaprobeError(f"{path} is not a vlaprobe monitor file; {hint}")
+    version = data.pop("format_version", 1)
+    if version not in (1, MONITOR_FORMAT_VERSION):
+        raise VlaprobeError(
+            f"{path} is a monitor file of format version {version}, this vlaprobe reads versions 1 and "
+            f"{MONITOR_FORMAT_VERSION}; {hint}"
+        )
+    if version == 1:
+        for episode in data.get("per_episode") or []:
+            episode.setdefault("false_alarms", 0)
+    try:
+        return dacite.from_dict(MonitorResult, data, config=dacite.Config(check_types=False, cast=[tuple]))
+    except (dacite.DaciteError, TypeError, ValueError, AttributeError) as exc:
+        raise VlaprobeError(f"{path} is damaged ({exc}); {hint}") from None
 
 
 @dataclass
@@ -345,7 +385,7 @@ def monitor(cfg: MonitorConfig) -> MonitorResult:
         per_episode=[_episode_figures(p) for p in pairs],
     )
     out = Path(cfg.out) if cfg.out is not None else Path(cfg.probes)
-    write_atomic(out / MONITOR_FILE, json.dumps(result.to_json(), indent=1) + "\n")
+    write_monitor(out, result)
     return result
 
 
@@ -365,10 +405,7 @@ def report_section(probes: Path) -> Section | None:
         return None
     from vlaprobe.reports.sections import Section
 
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
-        raise VlaprobeError(f"cannot read {path}; run vlaprobe monitor again") from None
+    data = read_monitor(probes).to_json()
     return Section(
         id=SECTION_ID, title=SECTION_TITLE, template=SECTION_TEMPLATE, data=data, package="vlaprobe.cognition"
     )

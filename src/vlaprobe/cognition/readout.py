@@ -2,9 +2,12 @@
 
 The probes only cover the atoms that were not near-constant in training (the kept atoms); the others are
 held at their training-majority value (train frequency >= 0.5, from the probes' metadata) and marked not
-probed, with probability NaN. Each head is read at one layer (default: its best). The weights are pulled out of
-torch into numpy once, so a step costs two matrix-vector products and no torch call; a stored episode is
-read row by row with the very same operations as a live step, so both give identical predictions.
+probed, with probability NaN. Each head is read at one layer (default: the probes' ``default_layer``, the
+earliest layer statistically tied with the head's best). Every step goes through
+:meth:`vlaprobe.probes.probeset.ProbeSet.logits` (the one application of a probe,
+:func:`vlaprobe.probes.apply.apply_probes`) and ``torch.sigmoid``, as ``ProbeSet.probabilities`` does; a stored
+episode is read row by row with the very same operations as a live step, so the live server, ``vlaprobe
+monitor`` and the probe set give identical predictions, bit for bit.
 
     readout = ProbeReadout.load("runs/default/probes")
     a = readout.assign(hidden)          # (hidden states, hidden) of one step -> Assignment
@@ -43,13 +46,10 @@ class Assignment:
 
 @dataclass(frozen=True)
 class _Head:
+    name: str
     atoms: tuple[str, ...]
     layer: int
     kept: np.ndarray  # positions of the probe's outputs among ``atoms``
-    weight: np.ndarray  # (hidden, kept) float32
-    bias: np.ndarray  # (kept,)
-    mean: np.ndarray | None
-    std: np.ndarray | None
     majority: np.ndarray  # (atoms,) bool
     probed: np.ndarray  # (atoms,) bool
 
@@ -90,12 +90,13 @@ class ProbeReadout:
     @staticmethod
     def _pull(probes: ProbeSet, head: str, layer: int | None) -> _Head:
         atoms = tuple(probes.atom_names(head))
-        layer = probes.best_layer(head) if layer is None else int(layer)
+        layer = probes.default_layer(head) if layer is None else int(layer)
         if layer not in probes.layers:
             raise VlaprobeError(
                 f"no {head} probe for hidden state {layer}; these probes cover {probes.layers}"
             )
-        i = probes.layers.index(layer)
+        if probes.tensors.get(f"{head}.weight") is None or probes.tensors.get(f"{head}.bias") is None:
+            raise VlaprobeError(f"the {head} probes have no weights or biases; run vlaprobe train again")
         position = {a: j for j, a in enumerate(atoms)}
         kept = np.array([position[a] for a in probes.atoms(head)], dtype=np.int64)
         majority = np.zeros(len(atoms), dtype=bool)
@@ -104,26 +105,16 @@ class ProbeReadout:
                 majority[position[atom]] = frequency >= 0.5
         probed = np.zeros(len(atoms), dtype=bool)
         probed[kept] = True
-        tensors = probes.tensors
-
-        def pull(name: str) -> np.ndarray | None:
-            x = tensors.get(f"{head}.{name}")
-            return None if x is None else np.ascontiguousarray(x[i].detach().cpu().numpy(), dtype=np.float32)
-
-        weight, bias = pull("weight"), pull("bias")
-        if weight is None or bias is None:
-            raise VlaprobeError(f"the {head} probes have no weights or biases; run vlaprobe train again")
-        return _Head(atoms, layer, kept, weight, bias, pull("mean"), pull("std"), majority, probed)
+        return _Head(head, atoms, layer, kept, majority, probed)
 
     def _probs(self, head: _Head, x: np.ndarray) -> np.ndarray:
-        """Probabilities of the kept atoms from one hidden state (hidden,) or (7, hidden) at the head's layer."""
-        x = np.asarray(x, dtype=np.float32)
-        if x.ndim == 2:  # "action_tokens" pooling: mean over the 7 positions, as in training
-            x = x.mean(axis=0)
-        if head.mean is not None and head.std is not None:
-            x = (x - head.mean) / head.std
-        z = x @ head.weight + head.bias
-        return (0.5 + 0.5 * np.tanh(0.5 * z)).astype(np.float32)  # the logistic function, without overflow
+        """Probabilities of the kept atoms from one hidden state (hidden,) or (7, hidden) at the head's layer:
+        ``ProbeSet.probabilities``' operations exactly."""
+        import torch  # here, not at the top: the cognition imports without torch (the probe set needs it)
+
+        row = torch.from_numpy(np.array(x, dtype=np.float32))  # a copy: stored rows may be read-only
+        z = self.probes.logits(row, head.name, head.layer)
+        return torch.sigmoid(z).numpy()
 
     def _fill(self, head: _Head, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         values = head.majority.copy()

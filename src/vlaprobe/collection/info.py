@@ -25,7 +25,7 @@ def summarize(path: str | Path) -> JsonObject:
     return {
         **store.summary(),
         "bytes": _bytes(Path(path)),
-        "instructions": store.meta.get("instructions", {}),
+        "instructions": store.metadata.instructions,
     }
 
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from types import EllipsisType
 
@@ -138,6 +138,49 @@ REQUIRED_META = ("atom_names", "model_id", "num_hidden_states", "hidden_size", "
 """Root attributes every reader needs."""
 
 
+@dataclass(frozen=True)
+class StoreMeta:
+    """The store's metadata (the root attributes written by ``vlaprobe collect`` through
+    :meth:`~vlaprobe.collection.writer.StoreWriter.open`), typed: what other packages read of it. Keys a store
+    of this format version may lack (written before they existed) read as their defaults."""
+
+    format_version: int
+    model_id: str
+    pooling: str
+    num_hidden_states: int
+    hidden_size: int
+    atom_names: dict[str, list[str]]
+    created: str = ""
+    """When the store was created (ISO 8601; "" in stores that do not say)."""
+    driver: str | None = None
+    """Who acted: "policy", "expert", "dagger" (None: not recorded)."""
+    instructions: dict[str, str] = field(default_factory=dict)
+    """Task id (as a string) -> the task's instruction."""
+    perturb: str | None = None
+    """The perturbation spec of the run (None: no perturbation)."""
+
+    @classmethod
+    def parse(cls, meta: Mapping[str, Json]) -> StoreMeta:
+        """The typed view of root attributes :func:`read_meta` accepted."""
+        return cls(
+            format_version=int(meta["format_version"]),
+            model_id=str(meta["model_id"]),
+            pooling=str(meta["pooling"]),
+            num_hidden_states=int(meta["num_hidden_states"]),
+            hidden_size=int(meta["hidden_size"]),
+            atom_names={str(h): [str(a) for a in v] for h, v in meta["atom_names"].items()},
+            created=str(meta.get("created") or ""),
+            driver=None if meta.get("driver") is None else str(meta["driver"]),
+            instructions={str(k): str(v) for k, v in (meta.get("instructions") or {}).items()},
+            perturb=None if meta.get("perturb") is None else str(meta["perturb"]),
+        )
+
+
+def read_store_meta(path: str | Path) -> StoreMeta:
+    """The typed metadata of the store at ``path``, or a one-line error (see :func:`read_meta`)."""
+    return StoreMeta.parse(read_meta(Path(path)))
+
+
 def list_infos(folder: Path) -> list[EpisodeInfo]:
     """Infos of the episode groups directly under ``folder``, in (task, init, attempt) order."""
     if not folder.is_dir():
@@ -237,13 +280,15 @@ class ActivationStore:
     def __init__(self, path: Path, meta: JsonObject) -> None:
         self.path = path
         self.meta = meta
-        self.num_hidden_states: int = int(meta["num_hidden_states"])
-        self.hidden_size: int = int(meta["hidden_size"])
-        self.pooling: str = str(meta["pooling"])
-        self.model_id: str = str(meta["model_id"])
-        self.created: str = str(meta.get("created", ""))
+        """The root attributes as stored (what the writer compares); read them through :attr:`metadata`."""
+        self.metadata = StoreMeta.parse(meta)
+        self.num_hidden_states: int = self.metadata.num_hidden_states
+        self.hidden_size: int = self.metadata.hidden_size
+        self.pooling: str = self.metadata.pooling
+        self.model_id: str = self.metadata.model_id
+        self.created: str = self.metadata.created
         """When the store was created (ISO 8601; "" in stores that do not say)."""
-        self.atom_names: dict[str, list[str]] = {h: list(v) for h, v in meta["atom_names"].items()}
+        self.atom_names: dict[str, list[str]] = {h: list(v) for h, v in self.metadata.atom_names.items()}
         self._infos = list_infos(path / "episodes")
         self._by_key = {e.key: e for e in self._infos}
         self._root = zarr.open_group(zarr.storage.LocalStore(path, read_only=True), mode="r")
@@ -354,9 +399,9 @@ class ActivationStore:
         eps = self.episodes()
         return {
             "path": str(self.path),
-            "format_version": self.meta["format_version"],
+            "format_version": self.metadata.format_version,
             "model_id": self.model_id,
-            "driver": self.meta.get("driver"),
+            "driver": self.metadata.driver,
             "layers": self.num_hidden_states,
             "hidden_size": self.hidden_size,
             "pooling": self.pooling,

@@ -49,9 +49,9 @@ class ServeConfig:
     driver: LiveDriver = "expert"
     """Driver of episodes started without one (the paper's client): the scripted expert or the VLA itself."""
     object_layer: int | None = None
-    """Hidden state the object probe reads; default: its best layer."""
+    """Hidden state the object probe reads; default: its ``default_layer`` (earliest tied with the best)."""
     action_layer: int | None = None
-    """Hidden state the action probe reads; default: its best layer."""
+    """Hidden state the action probe reads; default: its ``default_layer`` (earliest tied with the best)."""
     post_success_steps: int = 10
     """Steps an episode goes on after success (the expert releases the object and lifts the arm), as in
     collection: the goal must hold for the cognition's debounce steps before it counts as reached."""

@@ -73,7 +73,7 @@ class Split:
 
 
 def _instruction(store: ActivationStore, info: EpisodeInfo, arrays: StoredEpisode) -> str:
-    text = arrays.attributes.instruction or (store.meta.get("instructions") or {}).get(str(info.task))
+    text = arrays.attributes.instruction or store.metadata.instructions.get(str(info.task))
     if not text:
         raise VlaprobeError(
             f"store {store.path}: episode {info.key} has no instruction; collect it again with this vlaprobe"
@@ -117,7 +117,7 @@ def load_demonstrations(
     has_proprio = True
     for s_index, store in enumerate(stores):
         # The expert's labels teach wherever the model went: a DAgger store's failed episodes count too.
-        only_success = success_only and store.meta.get("driver") != "dagger"
+        only_success = success_only and store.metadata.driver != "dagger"
         infos = store.episodes(success_only=only_success)
         if not infos:
             what = "successful episodes" if only_success else "episodes"

@@ -117,12 +117,13 @@ def resolve_token(cfg: ServeConfig) -> str | None:
 
 def load_probes(cfg: ServeConfig) -> ProbeSet:
     from vlaprobe.probes import ProbeSet
+    from vlaprobe.probes.probeset import META_FILE
 
     if cfg.probes.is_file():
         raise VlaprobeError(
             f"--probes {cfg.probes} is a file, not a folder; pass the folder vlaprobe train wrote"
         )
-    if not (cfg.probes / "probes.json").is_file():
+    if not (cfg.probes / META_FILE).is_file():
         raise VlaprobeError(
             f"no probes in {cfg.probes}; run `vlaprobe run` first (or pass --probes DIR from vlaprobe train)"
         )

@@ -4,7 +4,7 @@ Typical use (``docs/probing.md`` has the method)::
 
     out = train_probes(TrainConfig(store=Path("runs/x/activations")))
     probes = ProbeSet.load(out, model_id=..., pooling=...)
-    probes.predict(hidden_states)  # {atom: 0/1} at each head's best layer
+    probes.predict(hidden_states)  # {atom: 0/1} at each head's default layer (earliest tied with the best)
 
 The names below are imported on first use, so that ``vlaprobe.probes.results`` (the evaluation's
 dataclasses, read by the report) loads without torch.

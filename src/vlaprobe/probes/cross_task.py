@@ -13,7 +13,7 @@ from pathlib import Path
 
 from vlaprobe.configs.hypotheses import CompareSplitsConfig
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import JsonObject
+from vlaprobe.probes.results import HeadResult, read_evaluation
 
 
 @dataclass(frozen=True)
@@ -32,37 +32,25 @@ class PredicateRow:
         return None if self.within is None or self.across is None else self.within - self.across
 
 
-def _evaluation(folder: Path) -> JsonObject:
-    try:
-        return json.loads((folder / "evaluation.json").read_text())
-    except (OSError, ValueError):
-        raise VlaprobeError(
-            f"no readable evaluation.json in {folder}; pass a folder written by vlaprobe train"
-        ) from None
-
-
-def _at_best(head: JsonObject, metric: str) -> dict[str, tuple[float | None, float | None, float | None]]:
+def _at_best(head: HeadResult, metric: str) -> dict[str, tuple[float | None, float | None, float | None]]:
     """predicate -> (value, low, high) at the head's best layer."""
-    i = head["best"]["index"]
-    level = head["probe"][metric]["predicate"]
-    return {
-        p: (level["value"][i][k], level["low"][i][k], level["high"][i][k])
-        for k, p in enumerate(head["predicates"])
-    }
+    i = head.best.index
+    level = head.probe[metric].predicate
+    return {p: (level.value[i][k], level.low[i][k], level.high[i][k]) for k, p in enumerate(head.predicates)}
 
 
 def split_comparison(within: Path, across: Path, metric: str = "balanced_accuracy") -> list[PredicateRow]:
     """Rows for every (head, predicate) probed under either split, heads and predicates in figure order."""
-    a, b = _evaluation(Path(within)), _evaluation(Path(across))
+    a, b = read_evaluation(Path(within)), read_evaluation(Path(across))
     rows = []
-    for head in a["heads"]:
-        ha, hb = a["heads"].get(head), b["heads"].get(head)
-        if not ha or not hb or "best" not in ha or "best" not in hb:
+    for head in a.heads:
+        ha, hb = a.heads.get(head), b.heads.get(head)
+        if ha is None or hb is None:
             continue
-        if metric not in ha["probe"] or metric not in hb["probe"]:
-            raise VlaprobeError(f"no {metric} in both evaluations; use one of {sorted(ha['probe'])}")
+        if metric not in ha.probe or metric not in hb.probe:
+            raise VlaprobeError(f"no {metric} in both evaluations; use one of {sorted(ha.probe)}")
         va, vb = _at_best(ha, metric), _at_best(hb, metric)
-        for p in [*ha["predicates"], *[q for q in hb["predicates"] if q not in va]]:
+        for p in [*ha.predicates, *[q for q in hb.predicates if q not in va]]:
             x, y = va.get(p, (None, None, None)), vb.get(p, (None, None, None))
             rows.append(PredicateRow(head, p, x[0], (x[1], x[2]), y[0], (y[1], y[2])))
     return rows

@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import asdict
 from pathlib import Path
 
+import dacite
 import numpy as np
-import torch
 
 from vlaprobe.configs.hypotheses import HypothesesConfig
 from vlaprobe.errors import VlaprobeError
@@ -22,16 +23,44 @@ from vlaprobe.files import write_atomic
 from vlaprobe.probes.bootstrap import bootstrap_weights
 from vlaprobe.probes.hypotheses import Hypotheses, LayerCurves, answer_hypotheses, curves_from_counts
 from vlaprobe.probes.metrics import confusion_by_group
+from vlaprobe.symbols import HEADS
 
 FILE = "hypotheses.json"
+FORMAT = "vlaprobe-hypotheses"
+FORMAT_VERSION = 1
+"""Version 1: :class:`~vlaprobe.probes.hypotheses.Hypotheses` with ``format`` and ``format_version``; a file
+without them (written before they existed) holds the same fields and is read as version 1."""
 
 
-def read_json(path: Path) -> dict:
-    """A JSON file of the probe folder (``hypotheses.json``, ``probes.json`` ...), or a one-line error."""
+def write_hypotheses(folder: str | Path, result: Hypotheses) -> Path:
+    """Write ``<folder>/hypotheses.json`` atomically; return its path."""
+    path = Path(folder) / FILE
+    data = {"format": FORMAT, "format_version": FORMAT_VERSION, **asdict(result)}
+    write_atomic(path, json.dumps(data, indent=1) + "\n")
+    return path
+
+
+def read_hypotheses(folder: str | Path) -> Hypotheses:
+    """Read ``<folder>/hypotheses.json``; a one-line error if it is missing, damaged or of an unknown version."""
+    path = Path(folder) / FILE
+    hint = "run vlaprobe hypotheses --probes on the folder again"
     try:
-        return json.loads(path.read_text())
+        data = json.loads(path.read_text())
     except (OSError, ValueError):
-        raise VlaprobeError(f"cannot read {path}; pass the --out folder of `vlaprobe train`") from None
+        raise VlaprobeError(f"cannot read {path}; {hint}") from None
+    if not isinstance(data, dict) or data.get("format", FORMAT) != FORMAT:
+        raise VlaprobeError(f"{path} is not a vlaprobe hypotheses file; {hint}")
+    version = data.pop("format_version", 1)
+    data.pop("format", None)
+    if version != FORMAT_VERSION:
+        raise VlaprobeError(
+            f"{path} is a hypotheses file of format version {version}, this vlaprobe reads version "
+            f"{FORMAT_VERSION}; {hint}"
+        )
+    try:
+        return dacite.from_dict(Hypotheses, data, config=dacite.Config(check_types=False, cast=[tuple]))
+    except (dacite.DaciteError, TypeError, ValueError) as exc:
+        raise VlaprobeError(f"{path} is damaged ({exc}); {hint}") from None
 
 
 def run_curves(
@@ -40,16 +69,18 @@ def run_curves(
     """Balanced-accuracy curves of both heads on the probes' test episodes, with joint resamples: by default
     (None) the evaluation's (its bootstrap count and seed), else ``resamples`` drawn with ``seed``."""
     from vlaprobe.probes import ProbeSet
+    from vlaprobe.probes.apply import apply_probes_to_rows
     from vlaprobe.probes.data import load_store
+    from vlaprobe.probes.results import read_evaluation
 
-    meta, ev = read_json(probes / "probes.json"), read_json(probes / "evaluation.json")
-    if ev["split"]["folds"] != 1:
+    ev = read_evaluation(probes)
+    if ev.split.folds != 1:
         raise VlaprobeError(
-            f"{probes} was trained with {ev['split']['folds']} folds, and its saved probes were refit on every "
+            f"{probes} was trained with {ev.split.folds} folds, and its saved probes were refit on every "
             "episode; train with one train/test split (the default) for H1/H2"
         )
-    resamples = int(ev["bootstrap"]["resamples"]) if resamples is None else resamples
-    seed = int(ev["seeds"]["bootstrap"]) if seed is None else seed
+    resamples = ev.bootstrap.resamples if resamples is None else resamples
+    seed = ev.seeds["bootstrap"] if seed is None else seed
     if resamples < 10:
         raise VlaprobeError(
             f"{resamples} bootstrap resamples are too few for H1/H2 (without --bootstrap: those of {probes}'s "
@@ -58,10 +89,13 @@ def run_curves(
     ps = ProbeSet.load(probes)
     if not {"object", "action"} <= set(ps.heads):
         raise VlaprobeError(f"H1/H2 need object and action probes; {probes} has {ps.heads}")
-    store = store or Path(meta["config"]["store"])
-    data = load_store(store, heads=("object", "action"), layers=ps.layers)
-    test = [data.episode_keys.index(k) for k in ev["split"]["test_episodes"] if k in data.episode_keys]
-    if len(test) != len(ev["split"]["test_episodes"]):
+    store = store or ps.meta.store
+    if store is None:
+        raise VlaprobeError(f"{probes}/probes.json does not name its store; pass --store")
+    data = load_store(store, heads=HEADS, layers=ps.layers)
+    test_keys = ev.split.test_episodes
+    test = [data.episode_keys.index(k) for k in test_keys if k in data.episode_keys]
+    if len(test) != len(test_keys):
         raise VlaprobeError(
             f"{store} lacks test episodes of {probes}; pass the store it was trained on (--store)"
         )
@@ -70,17 +104,19 @@ def run_curves(
     episode = np.array([position[e] for e in data.episode[rows]])
     cut = math.log(ps.threshold / (1 - ps.threshold))
     counts = {}
-    for head in ("object", "action"):
+    for head in HEADS:
         cols = [data.atom_names[head].index(a) for a in ps.atoms(head)]
         labels = data.labels[head][rows][:, cols]
-        preds = np.zeros((len(ps.layers), len(rows), len(cols)), dtype=bool)
-        for i in range(len(ps.layers)):
-            x = data.hidden[i][torch.as_tensor(rows)].float()
-            mean, std = ps.tensors.get(f"{head}.mean"), ps.tensors.get(f"{head}.std")
-            if mean is not None and std is not None:
-                x = (x - mean[i]) / std[i]
-            logits = x @ ps.tensors[f"{head}.weight"][i] + ps.tensors[f"{head}.bias"][i]
-            preds[i] = (logits > cut).numpy()
+        t = ps.tensors
+        logits = apply_probes_to_rows(
+            data.hidden,
+            t[f"{head}.weight"],
+            t[f"{head}.bias"],
+            t.get(f"{head}.mean"),
+            t.get(f"{head}.std"),
+            rows,
+        )
+        preds = logits > cut  # the rule of evaluation.json's figures
         counts[head] = confusion_by_group(preds, labels, episode, len(test))
     return curves_from_counts(counts, ps.layers, bootstrap_weights(len(test), resamples, seed))
 
@@ -90,7 +126,7 @@ def hypotheses(cfg: HypothesesConfig) -> Hypotheses:
     if cfg.bootstrap is not None and cfg.bootstrap < 10:
         raise VlaprobeError(f"--bootstrap must be at least 10, got {cfg.bootstrap}")
     result = answer_hypotheses(run_curves(Path(cfg.probes), cfg.store, cfg.bootstrap, cfg.seed))
-    write_atomic(Path(cfg.probes) / FILE, json.dumps(result.as_dict(), indent=1).encode())
+    write_hypotheses(cfg.probes, result)
     return result
 
 

@@ -11,11 +11,13 @@ from vlaprobe.files import JsonObject, versions
 from vlaprobe.probes.data import ProbeData
 from vlaprobe.probes.evaluate import CrossFit
 from vlaprobe.probes.metrics import METRICS
-from vlaprobe.probes.probeset import FORMAT, FORMAT_VERSION
+from vlaprobe.probes.probemeta import HeadMeta, ProbesMeta, TrainedOn
 from vlaprobe.probes.results import (
+    BestLayer,
     Bootstrap,
     Controls,
     Dataset,
+    DroppedAtom,
     Episodes,
     Evaluation,
     HeadResult,
@@ -31,6 +33,11 @@ def config_dict(cfg: TrainConfig) -> JsonObject:
     return config_to_dict(cfg)
 
 
+def tied_layers(best: BestLayer) -> list[int]:
+    """The layers tied with the best (``best.tied``), the best included; [best layer] when none is recorded."""
+    return sorted({int(layer) for layer in best.tied} | {int(best.layer)})
+
+
 def probe_meta(
     data: ProbeData,
     cfg: TrainConfig,
@@ -39,43 +46,44 @@ def probe_meta(
     filters: dict[str, LabelFilter],
     results: dict[str, HeadResult],
     refit: bool,
-) -> JsonObject:
-    return {
-        "format": FORMAT,
-        "format_version": FORMAT_VERSION,
-        "model_id": data.model_id,
-        "pooling": data.pooling,
-        "hidden_size": data.hidden_size,
-        "num_hidden_states": data.num_hidden_states,
-        "layers": data.layers,
-        "threshold": cfg.probe.threshold,
-        "action_tokens": "mean over the 7 action-token positions"
-        if data.pooling == "action_tokens"
-        else None,
-        "heads": {
-            h: {
-                "atom_names": data.atom_names[h],
-                "kept": results[h].atoms,
-                "kept_index": filters[h].kept.tolist(),
-                "dropped": filters[h].dropped,
-                "best_layer": results[h].best.layer,
-                "best_metric": results[h].best.metric,
-                "best_value": results[h].best.value,
-                "best_rule": results[h].best.rule,
-            }
-            for h in heads
-        },
-        "standardized": cfg.probe.standardize,
-        "trained_on": {
-            "episodes": len(data.episode_keys),
-            "steps": data.num_steps,
-            "split": "all episodes (refit after k-fold)" if refit else "training split",
-        },
-        "config": config_dict(cfg),
-        "seeds": seeds,
-        "versions": versions(),
-        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-    }
+) -> ProbesMeta:
+    """``probes.json`` of a training run (written with the probes by ``ProbeSet.save``)."""
+
+    def head(h: str) -> HeadMeta:
+        best, tied = results[h].best, tied_layers(results[h].best)
+        return HeadMeta(
+            atom_names=list(data.atom_names[h]),
+            kept=list(results[h].atoms),
+            kept_index=filters[h].kept.tolist(),
+            dropped=[DroppedAtom(**d) for d in filters[h].dropped],
+            best_layer=best.layer,
+            best_metric=best.metric,
+            best_value=best.value,
+            best_rule=best.rule,
+            tied_layers=tied,
+            default_layer=min(tied),
+        )
+
+    return ProbesMeta(
+        model_id=data.model_id,
+        pooling=data.pooling,
+        hidden_size=data.hidden_size,
+        num_hidden_states=data.num_hidden_states,
+        layers=list(data.layers),
+        threshold=cfg.probe.threshold,
+        action_tokens="mean over the 7 action-token positions" if data.pooling == "action_tokens" else None,
+        heads={h: head(h) for h in heads},
+        standardized=cfg.probe.standardize,
+        trained_on=TrainedOn(
+            episodes=len(data.episode_keys),
+            steps=data.num_steps,
+            split="all episodes (refit after k-fold)" if refit else "training split",
+        ),
+        config=config_dict(cfg),
+        seeds=seeds,
+        versions=versions(),
+        created=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    )
 
 
 def evaluation_record(

@@ -371,12 +371,5 @@ def read_evaluation(folder: str | Path) -> Evaluation:
 
 
 def read_test_episodes(folder: str | Path) -> list[str]:
-    """The held-out test episodes of ``<folder>/evaluation.json`` (its ``split``; the rest is not read, so a
-    reader that needs only the split accepts an evaluation of any version)."""
-    path = Path(folder) / EVALUATION_FILE
-    try:
-        return [str(k) for k in json.loads(path.read_text())["split"]["test_episodes"]]
-    except (OSError, ValueError, KeyError, TypeError):
-        raise VlaprobeError(
-            f"cannot read the held-out test episodes from {path}; pass the folder written by vlaprobe train"
-        ) from None
+    """The held-out test episodes of ``<folder>/evaluation.json`` (read with :func:`read_evaluation`)."""
+    return list(read_evaluation(folder).split.test_episodes)

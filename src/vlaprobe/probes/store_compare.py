@@ -24,7 +24,7 @@ import torch
 
 from vlaprobe.configs.stores import CompareStoresConfig
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import write_atomic
+from vlaprobe.files import JsonObject, write_atomic
 from vlaprobe.probes.baselines import BASELINES, predict_baselines
 from vlaprobe.probes.bootstrap import bootstrap_weights, interval
 from vlaprobe.probes.metrics import atom_metrics, layer_means
@@ -82,8 +82,48 @@ class StoreComparison:
     resamples: int
     stores: list[StoreFigures]
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> JsonObject:
         return asdict(self)
+
+
+FORMAT = "vlaprobe-store-comparison"
+FORMAT_VERSION = 1
+"""Version 1: :class:`StoreComparison` with ``format`` and ``format_version``; a file without them (written
+before they existed) holds the same fields and is read as version 1."""
+
+
+def write_store_comparison(folder: str | Path, comparison: StoreComparison) -> Path:
+    """Write ``<folder>/store_comparison.json`` atomically; return its path."""
+    path = Path(folder) / FILE
+    data = {"format": FORMAT, "format_version": FORMAT_VERSION, **comparison.as_dict()}
+    write_atomic(path, json.dumps(data, indent=1) + "\n")
+    return path
+
+
+def read_store_comparison(folder: str | Path) -> StoreComparison:
+    """Read ``<folder>/store_comparison.json``; a one-line error if it is missing, damaged or of an unknown
+    version."""
+    import dacite
+
+    path = Path(folder) / FILE
+    hint = "run vlaprobe compare-stores --probes again"
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        raise VlaprobeError(f"cannot read {path}; {hint}") from None
+    if not isinstance(data, dict) or data.get("format", FORMAT) != FORMAT:
+        raise VlaprobeError(f"{path} is not a vlaprobe store comparison; {hint}")
+    version = data.pop("format_version", 1)
+    data.pop("format", None)
+    if version != FORMAT_VERSION:
+        raise VlaprobeError(
+            f"{path} is a store comparison of format version {version}, this vlaprobe reads version "
+            f"{FORMAT_VERSION}; {hint}"
+        )
+    try:
+        return dacite.from_dict(StoreComparison, data, config=dacite.Config(check_types=False))
+    except (dacite.DaciteError, TypeError, ValueError) as exc:
+        raise VlaprobeError(f"{path} is damaged ({exc}); {hint}") from None
 
 
 def _none(x: float) -> float | None:
@@ -238,13 +278,13 @@ def table_lines(c: StoreComparison) -> list[str]:
 
 
 def main(cfg: CompareStoresConfig) -> int:
-    if cfg.probes is not None and not (Path(cfg.probes) / "probes.json").is_file():
-        raise VlaprobeError(
-            f"--probes {cfg.probes} has no probes.json; pass a folder written by vlaprobe train"
-        )
+    if cfg.probes is not None:
+        from vlaprobe.probes.probemeta import read_probes_meta
+
+        read_probes_meta(cfg.probes)  # a probe folder, refused before the stores are read
     result = compare_stores(cfg)
     if cfg.probes is not None:
-        write_atomic(Path(cfg.probes) / FILE, json.dumps(result.as_dict(), indent=1).encode())
+        write_store_comparison(cfg.probes, result)
     if cfg.json:
         print(json.dumps(result.as_dict()))
     else:

@@ -21,6 +21,7 @@ import torch
 
 from vlaprobe.configs.train import ProbeConfig
 from vlaprobe.devices import resolve_device
+from vlaprobe.probes.apply import apply_probes_to_rows
 from vlaprobe.probes.lbfgs import Convergence, fit_logistic, l2_of_c
 from vlaprobe.probes.regularization import ColumnGroups, CrossValidation, choose_c
 
@@ -59,21 +60,7 @@ class LinearProbes:
 
     def logits(self, hidden: torch.Tensor, rows: np.ndarray | None = None, chunk: int = 1024) -> torch.Tensor:
         """Logits (layers, rows, atoms), on the CPU, of ``rows`` (default all) of ``hidden`` (layers, steps, hidden)."""
-        device = self.weight.device
-        index = (
-            torch.arange(hidden.shape[1])
-            if rows is None
-            else torch.as_tensor(np.asarray(rows), dtype=torch.long)
-        )
-        out = torch.empty((self.weight.shape[0], len(index), self.weight.shape[2]))
-        with torch.no_grad():
-            for start in range(0, len(index), chunk):
-                part = index[start : start + chunk]
-                x = hidden.index_select(1, part.to(hidden.device)).to(device, torch.float32)
-                if self.mean is not None and self.std is not None:
-                    x = (x - self.mean[:, None]) / self.std[:, None]
-                out[:, start : start + len(part)] = torch.baddbmm(self.bias[:, None], x, self.weight).cpu()
-        return out
+        return apply_probes_to_rows(hidden, self.weight, self.bias, self.mean, self.std, rows, chunk)
 
 
 def training_matrix(

@@ -51,16 +51,15 @@ def find_sections(probes: Path) -> list[Section]:
 
 def diversity_section(probes: Path) -> Section | None:
     """The diversity of the store the probes were trained on (if it is still there)."""
-    import json
-
     from vlaprobe.collection.diversity import store_diversity
+    from vlaprobe.errors import VlaprobeError
+    from vlaprobe.probes.probemeta import read_probes_meta
 
     try:
-        meta = json.loads((Path(probes) / "probes.json").read_text())
-        store = Path(meta["config"]["store"])
-    except (OSError, ValueError, KeyError, TypeError):
+        store = read_probes_meta(probes).store
+    except VlaprobeError:
         return None
-    if not (store / "zarr.json").is_file():
+    if store is None or not (store / "zarr.json").is_file():
         return None
     d = store_diversity(store)
     rows = [
@@ -79,30 +78,25 @@ def diversity_section(probes: Path) -> Section | None:
 
 def hypotheses_section(probes: Path) -> Section | None:
     """The H1/H2 section when ``hypotheses.json`` is in the probe folder."""
-    from vlaprobe.probes.hypotheses_run import FILE, read_json
+    from dataclasses import asdict
 
-    path = Path(probes) / FILE
-    if not path.is_file():
+    from vlaprobe.probes.hypotheses_run import FILE, read_hypotheses
+
+    if not (Path(probes) / FILE).is_file():
         return None
     return Section(
         id="hypotheses",
         title="H1 and H2: which layers encode objects and actions",
         template="hypotheses.html",
-        data=read_json(path),
+        data=asdict(read_hypotheses(probes)),
     )
 
 
 def store_comparison_section(probes: Path) -> Section | None:
     """The stores side by side when ``vlaprobe compare-stores --probes`` wrote ``store_comparison.json`` there."""
-    import json
+    from vlaprobe.probes.store_compare import FILE, read_store_comparison
 
-    from vlaprobe.probes.store_compare import FILE
-
-    path = Path(probes) / FILE
-    if not path.is_file():
+    if not (Path(probes) / FILE).is_file():
         return None
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
+    data = read_store_comparison(probes).as_dict()
     return Section(id="stores", title="Stores side by side", template="store_comparison.html", data=data)

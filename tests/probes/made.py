@@ -1,0 +1,81 @@
+"""Files of a probe folder made for tests through the real dataclasses (to be written by the real writers)."""
+
+from __future__ import annotations
+
+from vlaprobe.probes.results import (
+    BestLayer,
+    Bootstrap,
+    Controls,
+    Dataset,
+    Episodes,
+    Evaluation,
+    HeadResult,
+    Level,
+    MetricSummary,
+    Split,
+)
+
+
+def evaluation_with_split(
+    test_episodes: list[str],
+    model_id: str = "fake",
+    layers: list[int] | None = None,
+    hidden_size: int = 8,
+    heads: dict[str, HeadResult] | None = None,
+    folds: int = 1,
+) -> Evaluation:
+    """An :class:`Evaluation` whose split holds out ``test_episodes`` (and ``heads`` if given, else none)."""
+    n = len(test_episodes)
+    return Evaluation(
+        model_id=model_id,
+        pooling="last_prompt",
+        layers=list(layers or [0]),
+        hidden_size=hidden_size,
+        threshold=0.5,
+        metrics=["balanced_accuracy"],
+        dataset=Dataset(episodes=2 * n, steps=20 * n, episodes_per_task={"0": 2 * n}),
+        split=Split(
+            unit="episode",
+            stratified_by="task",
+            folds=folds,
+            test_fraction=0.5,
+            realized_test_fraction=0.5,
+            train=Episodes(episodes=n, steps=10 * n),
+            test=Episodes(episodes=n, steps=10 * n),
+            test_episodes=list(test_episodes),
+            leak_check="passed",
+        ),
+        bootstrap=Bootstrap("test episode", "95% percentile", 10, 0, "as in vlaprobe train"),
+        controls=Controls(shuffled_labels=False, shuffled_permutations=0),
+        heads=dict(heads or {}),
+        config={},
+        seeds={},
+        versions={},
+    )
+
+
+def head_result(predicates: list[str], values: list[list[float]], best: int, layers: list[int]) -> HeadResult:
+    """A head whose per-predicate balanced accuracy is ``values`` (layers, predicates), interval [v - 0.05, v],
+    with one atom per predicate and ``best`` the index of its best layer."""
+    low = [[v - 0.05 for v in row] for row in values]
+    per_layer = [sum(row) / len(row) for row in values]
+    level = Level(value=values, low=low, high=values, defined=[[10] * len(row) for row in values])
+    summary = MetricSummary(
+        atom=level,
+        predicate=level,
+        layer=Level(value=per_layer, low=per_layer, high=per_layer, defined=[10] * len(values)),
+    )
+    atoms = [f"{p}(a)" for p in predicates]
+    v = per_layer[best]
+    return HeadResult(
+        atoms=atoms,
+        predicates=list(predicates),
+        predicate_atoms={p: [a] for p, a in zip(predicates, atoms, strict=True)},
+        skipped_predicates=[],
+        dropped=[],
+        train_frequency=[0.5] * len(atoms),
+        test_frequency=[0.5] * len(atoms),
+        best=BestLayer(layers[best], best, "balanced_accuracy", v, v, v, "highest value"),
+        probe={"balanced_accuracy": summary},
+        baseline={"balanced_accuracy": summary},
+    )
