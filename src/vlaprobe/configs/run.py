@@ -19,6 +19,12 @@ def _default_collect() -> CollectConfig:
     return CollectConfig(workers=2, episodes_per_task=3, first_init=40)
 
 
+def _default_train() -> TrainConfig:
+    # The run answers whether any layer adds information beyond task x time, so it fits the conditional
+    # probes (about 3x the observer's probe-fitting time; `vlaprobe train` alone leaves them off).
+    return TrainConfig(conditional=True)
+
+
 @dataclass
 class RunConfig:
     """Collect hidden states and atoms, train the per-layer probes, run the cognition over the held-out
@@ -38,8 +44,8 @@ class RunConfig:
     """Run folder: activations/, probes/, report/ and config.json land here."""
     collect: CollectConfig = field(default_factory=_default_collect)
     """Collection settings (driver, model, tasks, episodes per task, workers...)."""
-    train: TrainConfig = field(default_factory=TrainConfig)
-    """Probe training and evaluation settings."""
+    train: TrainConfig = field(default_factory=_default_train)
+    """Probe training and evaluation settings (conditional probing on: ``--train.no-conditional`` skips it)."""
     monitor: MonitorConfig = field(default_factory=MonitorConfig)
     """Cognition settings (extra --monitor.rules files, debounce...) for the offline cognition evaluation over the test episodes."""
     report: ReportConfig = field(default_factory=ReportConfig)
