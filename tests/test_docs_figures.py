@@ -1,7 +1,7 @@
 """Every figure the README and docs quote with a marker equals the published results file it names.
 
-A marker follows the number it checks and renders invisibly: ``**0.917**<!-- fig:default:object.best.value -->``
-names ``docs/results/default.json`` (written by ``scripts/publish_results.py`` from a run's ``results.json``)
+A marker follows the number it checks and renders invisibly:
+``**0.917**<!-- fig:default:object.best.value -->`` names ``docs/results/default.json`` (written by ``scripts/publish_results.py`` from a run's ``results.json``)
 and a key of it. The quoted number must equal the file's figure rounded to the quoted decimals (a unicode
 minus and a leading + are allowed); an unknown file or key, or a marker with no number before it, fails.
 """
@@ -33,8 +33,20 @@ HEADLINE = [
 """Figures the README's headline must quote with a marker."""
 
 
+FENCED = re.compile(r"^```.*?^```", re.S | re.M)
+INLINE_CODE = re.compile(r"`[^`\n]*`")
+
+
+def _prose(text: str) -> str:
+    """``text`` with code blocks and code spans blanked (same lines and offsets): a marker there is an
+    example, not a quoted figure."""
+    text = FENCED.sub(lambda m: re.sub(r"[^\n]", " ", m[0]), text)
+    return INLINE_CODE.sub(lambda m: " " * len(m[0]), text)
+
+
 def markers(text: str) -> list[tuple[str | None, str, str, int]]:
-    """(quoted number or None, results name, key, line) of every marker in ``text``."""
+    """(quoted number or None, results name, key, line) of every marker in ``text`` outside code."""
+    text = _prose(text)
     found = []
     for m in MARKER.finditer(text):
         before = QUOTED.search(text[max(0, m.start() - 40) : m.start()])
@@ -116,3 +128,5 @@ def test_the_check_catches_wrong_unknown_and_unanchored_figures(tmp_path: Path) 
     assert "no number" in problems("best <!-- fig:t:object.best.value -->")[0]
     assert "undefined" in problems("0.5<!-- fig:t:cognition.goal.recall -->")[0]
     assert markers("a 1<!-- fig:t:a.b -->\nb 2<!-- fig:t:c.d -->")[1] == ("2", "t", "c.d", 2)
+    example = "```md\n**0.5**<!-- fig:t:object.best.value -->\n```\n`0.5<!-- fig:t:x -->` 7<!-- fig:t:y.z -->"
+    assert markers(example) == [("7", "t", "y.z", 4)]  # markers in code are examples, not checked

@@ -1,5 +1,5 @@
-"""``vlaprobe run``: the experiment end to end, collect → train → monitor → report → results, into one run
-folder."""
+"""``vlaprobe run``: the experiment end to end, collect → train → monitor → report → results, into one
+run folder."""
 
 from __future__ import annotations
 

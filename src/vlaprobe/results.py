@@ -101,6 +101,11 @@ COGNITION_FIGURES: dict[str, Callable[[MonitorResult], Figure]] = {
     "goal.false_alarms_per_100_steps": lambda m: m.probes.goal_detection.false_alarms_per_100_steps,
     "goal.mean_delay_steps": lambda m: m.probes.goal_detection.mean_delay_steps,
     "goal.failed_episodes": lambda m: m.probes.goal_detection.failed_episodes,
+    "subgoal_accuracy": lambda m: m.probes.subgoal_accuracy,
+    "violations_per_100_steps": lambda m: m.probes.violations_per_100_steps,
+    "truth_violations_per_100_steps": lambda m: m.truth.violations_per_100_steps,
+    "flips_per_step": lambda m: m.probes.flips_per_step,
+    "flips_per_step_debounced": lambda m: m.probes.flips_per_step_debounced,
     "belief_agreement": lambda m: m.probes.belief_agreement,
     "belief_agreement_step0": lambda m: m.probes.belief_agreement_step0,
     "belief_agreement_gain": _gain,
@@ -193,8 +198,8 @@ def read_results(path: str | Path) -> RunResults:
         raise VlaprobeError(f"{path} is not a vlaprobe results file; {hint}")
     if data.get("format_version") != FORMAT_VERSION:
         raise VlaprobeError(
-            f"{path} is a vlaprobe results file of format version {data.get('format_version')}, this vlaprobe "
-            f"reads version {FORMAT_VERSION}; run vlaprobe run again"
+            f"{path} is a vlaprobe results file of format version {data.get('format_version')}, this "
+            f"vlaprobe reads version {FORMAT_VERSION}; run vlaprobe run again"
         )
     try:
         return dacite.from_dict(RunResults, data, config=dacite.Config(strict=True))
