@@ -97,7 +97,7 @@ def run(cfg: RunConfig) -> Path:
     print(f"[4/4] report → {cfg.report.out}", flush=True)
     page = report(cfg.report)
     # The headline figures, the one file the README and docs quote (scripts/publish_results.py).
-    results = write_results(cfg.out, build_results(read_evaluation(cfg.train.out), cognition))
+    results = write_results(cfg.out, build_results(read_evaluation(Path(cfg.out) / "probes"), cognition))
     print(f"      headline figures → {results}", flush=True)
     t3 = time.perf_counter()
     # Written once every stage has succeeded: a rejected or failed run leaves the last good config in place.
