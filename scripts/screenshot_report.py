@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("page", type=Path, help="the report's index.html")
     parser.add_argument("out", type=Path, help="the PNG to write")
     parser.add_argument(
-        "--selector", default="#heatmap_accuracy", help="the element to capture ('': the screen)"
+        "--selector", default="#curves_object", help="the element to capture ('': the screen)"
     )
     parser.add_argument("--width", type=int, default=1200)
     parser.add_argument("--height", type=int, default=900)
