@@ -22,6 +22,7 @@ ORDER = (
     "reports",
     "cognition",
     "live",
+    "results",
     "pipeline",
     "commands",
     "cli",

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from vlaprobe.configs.run import RunConfig
 from vlaprobe.pipeline import control_store, stage_configs
 from vlaprobe.policies.openvla.embedded import CONTROL_MODEL, DEFAULT_MODEL
@@ -19,3 +21,45 @@ def test_default_run_compares_the_trained_observer_with_the_random_one(tmp_path:
 def test_empty_control_model_skips_the_control(tmp_path: Path) -> None:
     cfg = stage_configs(RunConfig(out=tmp_path / "r", control_model=""))
     assert cfg.train.observer_store is None
+
+
+def test_run_writes_the_headline_figures(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`vlaprobe run` on fake episodes ends with ``results.json``, built from the files the run wrote."""
+    from tests.collection.fakes import make_fake_worker
+
+    import vlaprobe.collection.collect as collection
+    from vlaprobe.configs.collect import CollectConfig
+    from vlaprobe.configs.env import EnvConfig
+    from vlaprobe.configs.train import TrainConfig
+    from vlaprobe.pipeline import run
+    from vlaprobe.results import RESULTS_FILE, read_results, results_from_run
+
+    real_collect = collection.collect
+    monkeypatch.setattr(collection, "collect", lambda cfg: real_collect(cfg, make_fake_worker))
+    monkeypatch.setattr("vlaprobe.pipeline.check_run_suite", lambda cfg: None)  # the fake has no LIBERO suite
+    collect = CollectConfig(
+        tasks=(0, 1, 2), episodes_per_task=4, max_tries_per_task=12, progress=False,
+        env=EnvConfig(max_steps=6, image_size=16),
+    )  # fmt: skip
+    cfg = RunConfig(
+        out=tmp_path / "r", collect=collect, control_model="",
+        train=TrainConfig(bootstrap=10, auprc_bootstrap=5, shuffled_control=False),
+    )  # fmt: skip
+    run(cfg)
+    results = read_results(tmp_path / "r" / RESULTS_FILE)
+    assert results == results_from_run(tmp_path / "r")
+    assert results.figure("object.best.value") is not None and "cognition.goal.recall" in results.figures
+
+
+def test_a_finished_run_folder_can_be_run_again(tmp_path: Path) -> None:
+    """Every file `vlaprobe run` writes is its own: the control observer's store and results.json too."""
+    from vlaprobe.configs.checks import RUN_FOLDER
+    from vlaprobe.files import check_owned_folder, mark_folder
+
+    out = tmp_path / "r"
+    for name in ("activations", "control", "probes", "report", "live"):
+        (out / name).mkdir(parents=True)
+    for name in ("config.json", "results.json"):
+        (out / name).write_text("{}")
+    mark_folder(out, RUN_FOLDER.owner)
+    check_owned_folder(out, RUN_FOLDER)

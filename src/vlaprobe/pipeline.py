@@ -1,4 +1,5 @@
-"""``vlaprobe run``: the experiment end to end, collect → train → cognition → report, into one run folder."""
+"""``vlaprobe run``: the experiment end to end, collect → train → cognition → report → results, into one
+run folder."""
 
 from __future__ import annotations
 
@@ -70,7 +71,9 @@ def run(cfg: RunConfig) -> Path:
     """Run all stages; return the report page. Re-running the same config resumes the collection."""
     from vlaprobe.cognition.monitor import monitor
     from vlaprobe.collection.collect import collect
+    from vlaprobe.probes.results import read_evaluation
     from vlaprobe.probes.train import train_probes
+    from vlaprobe.results import build_results, write_results
 
     check_run(cfg)
     check_run_suite(cfg)
@@ -90,10 +93,13 @@ def run(cfg: RunConfig) -> Path:
     train_probes(cfg.train)
     print(f"[3/4] cognition → {cfg.train.out}/monitor.json", flush=True)
     # The cognition over the held-out episodes, on the truth and on the probes; the report adds its section.
-    monitor(cfg.monitor)
+    cognition = monitor(cfg.monitor)
     t2 = time.perf_counter()
     print(f"[4/4] report → {cfg.report.out}", flush=True)
     page = report(cfg.report)
+    # The headline figures, the one file the README and docs quote (scripts/publish_results.py).
+    results = write_results(cfg.out, build_results(read_evaluation(Path(cfg.out) / "probes"), cognition))
+    print(f"      headline figures → {results}", flush=True)
     t3 = time.perf_counter()
     # Written once every stage has succeeded: a rejected or failed run leaves the last good config in place.
     config_path = _save_config(cfg)

@@ -328,7 +328,7 @@ def run_browser(
 
 
 if __name__ == "__main__":
-    # The README's screenshot, made with trained probes: against a running `vlaprobe serve` (defaults:
+    # The screenshot of docs/live.md, made with trained probes: against a running `vlaprobe serve` (defaults:
     # runs/default/probes), `python -m tests.web.browser http://127.0.0.1:6006 OUT` runs the test's scenario
     # (a 60-step expert episode of task 0) and writes live-view.png and timeline.png to OUT; docs/img/live-view.png
     # is OUT/live-view.png. With --store on the server, the store re-run is checked too.

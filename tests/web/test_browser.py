@@ -5,7 +5,7 @@ episode runs and returns to live, drops the object and shows it, ends the episod
 contrast rule runs on the page, the recording is replayed and a store episode re-run; every step shown is
 compared with the server's record. Then the server restarts and the page must reconnect by itself and list the
 recording again. Screenshots go to test-output/browser/ (random probes: noisier than trained ones, so the
-README's docs/img/live-view.png is made with trained probes by `python -m tests.web.browser`, see docs/web.md).
+docs/live.md's docs/img/live-view.png is made with trained probes by `python -m tests.web.browser`, see docs/web.md).
 """
 
 from __future__ import annotations

@@ -45,7 +45,7 @@ REPORT_FOLDER = FolderKind(
     fix="choose an empty or new folder (the default is report/ beside the probes)",
 )
 """The folder ``vlaprobe report`` writes: its page, tables and figures (png, svg, json, csv)."""
-RUN_FILES = frozenset({"activations", "probes", "report", "config.json", "live"})
+RUN_FILES = frozenset({"activations", "control", "probes", "report", "config.json", "results.json", "live"})
 RUN_FOLDER = FolderKind(
     "run",
     known=lambda name: name in RUN_FILES,
@@ -54,7 +54,8 @@ RUN_FOLDER = FolderKind(
     ),
     fix="choose an empty or new folder, or an earlier run's folder to resume it",
 )
-"""A run folder: the stages' folders, the run's config and ``live/`` (recordings of ``vlaprobe serve``)."""
+"""A run folder: the stages' folders, the control observer's ``control/``, the run's config, ``results.json``
+and ``live/`` (recordings of ``vlaprobe serve``)."""
 MAX_IMAGE_SIZE = 4096
 """Largest render side (pixels) of ``--env.image-size``."""
 LIBERO_HORIZON = 1000

@@ -2,10 +2,11 @@
 
 ``tiny-libero`` is the default observer: the tiny OpenVLA (64 patches of the 224 px image, see
 :func:`~vlaprobe.policies.openvla.tiny.tiny_config`) trained by ``vlaprobe finetune`` on the scripted expert's
-demonstrations of the 10 LIBERO-spatial tasks (recipe: ``recipes/tiny-libero.yaml``; figures: README). Its
-folder is an ordinary checkpoint folder (config.json with ``norm_stats``, ``model.safetensors`` stored in
-float16 to stay small, loaded in the run's dtype). ``tiny-libero-init`` (its starting weights, built from a seed)
-is the control observer; ``tiny`` is the random tiny model with OpenVLA's 256 patches.
+demonstrations of the 10 LIBERO-spatial tasks (recipe: ``recipes/tiny-libero.yaml``; figures:
+docs/tiny-libero.md). Its folder is an ordinary checkpoint folder (config.json with ``norm_stats``,
+``model.safetensors`` stored in float16 to stay small, loaded in the run's dtype). ``tiny-libero-init`` (its
+starting weights, built from a seed) is the control observer; ``tiny`` is the random tiny model with OpenVLA's
+256 patches.
 """
 
 from __future__ import annotations

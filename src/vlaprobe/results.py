@@ -1,0 +1,229 @@
+"""A run's headline figures (``<run>/results.json``): the one file the README and docs quote figures from.
+
+``vlaprobe run`` builds a :class:`RunResults` from the run's typed readers (the probes' evaluation, the
+cognition's figures) and writes it with :func:`write_results`; :func:`read_results` reads it back
+(``scripts/publish_results.py`` copies one into ``docs/results/``, ``tests/test_docs_figures.py`` checks the
+figures the docs quote against it). Figures are flat, dot-separated keys (``object.best.value``); an interval
+adds ``.value``, ``.low`` and ``.high``. A new figure is one line in :data:`HEAD_FIGURES`,
+:data:`COGNITION_FIGURES` or :data:`RUN_FIGURES`.
+
+Format version 1.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import dacite
+
+from vlaprobe.cognition.monitor import MONITOR_FILE, MonitorResult
+from vlaprobe.errors import VlaprobeError
+from vlaprobe.files import write_atomic
+from vlaprobe.probes.results import Evaluation, HeadResult, MetricSummary, read_evaluation
+
+FORMAT = "vlaprobe-results"
+FORMAT_VERSION = 1
+RESULTS_FILE = "results.json"
+
+Number = float | int | None
+"""One figure: None where the run left it undefined."""
+
+
+@dataclass(frozen=True)
+class Interval:
+    """A figure with its 95% bootstrap interval (stored as ``<key>.value``, ``<key>.low``, ``<key>.high``)."""
+
+    value: float | None
+    low: float | None
+    high: float | None
+
+
+Figure = Interval | Number
+
+
+UNDEFINED = Interval(None, None, None)
+
+
+def _layer_row(part: Mapping[str, MetricSummary] | None, metric: str, index: int) -> Interval:
+    """The mean-over-atoms figure of ``part`` at position ``index`` of its per-layer arrays."""
+    if part is None or metric not in part:
+        return UNDEFINED
+    level = part[metric].layer
+    return Interval(level.value[index], level.low[index], level.high[index])
+
+
+def _at_best(h: HeadResult, part: str) -> Interval:
+    """``part`` at the head's best layer (a baseline has one row for every layer)."""
+    index = 0 if part.endswith("baseline") else h.best.index
+    return _layer_row(h.part(part), h.best.metric, index)
+
+
+def _control_best(h: HeadResult) -> Interval:
+    b = h.observer_best
+    return UNDEFINED if b is None else Interval(b.value, b.low, b.high)
+
+
+HEAD_FIGURES: dict[str, Callable[[HeadResult], Figure]] = {
+    "atoms": lambda h: len(h.atoms),
+    "best.layer": lambda h: h.best.layer,
+    "best": lambda h: Interval(h.best.value, h.best.low, h.best.high),
+    "majority": lambda h: _at_best(h, "baseline"),
+    "task_baseline": lambda h: _at_best(h, "task_baseline"),
+    "task_time_baseline": lambda h: _at_best(h, "task_time_baseline"),
+    "shuffled": lambda h: _at_best(h, "control"),
+    "selectivity": lambda h: _at_best(h, "selectivity"),
+    "selectivity_task_time": lambda h: _at_best(h, "selectivity_task_time"),
+    "control.best.layer": lambda h: None if h.observer_best is None else h.observer_best.layer,
+    "control.best": _control_best,
+}
+"""Per head (``<head>.<key>``): figures of ``evaluation.json`` at the head's best layer. ``control`` is the
+control observer (the untrained network), ``shuffled`` the shuffled-label control."""
+
+
+def _detected(m: MonitorResult) -> int:
+    return sum(e.goal_step_truth is not None and e.goal_step_probes is not None for e in m.per_episode)
+
+
+def _gain(m: MonitorResult) -> Interval:
+    g = m.probes.belief_agreement_gain_95
+    value = m.probes.belief_agreement - m.probes.belief_agreement_step0
+    return Interval(value, None if g is None else g[0], None if g is None else g[1])
+
+
+COGNITION_FIGURES: dict[str, Callable[[MonitorResult], Figure]] = {
+    "episodes": lambda m: m.episodes,
+    "goal.detected": _detected,
+    "goal.recall": lambda m: m.probes.goal_detection.recall,
+    "goal.precision": lambda m: m.probes.goal_detection.precision,
+    "goal.false_alarms_per_100_steps": lambda m: m.probes.goal_detection.false_alarms_per_100_steps,
+    "goal.mean_delay_steps": lambda m: m.probes.goal_detection.mean_delay_steps,
+    "goal.failed_episodes": lambda m: m.probes.goal_detection.failed_episodes,
+    "subgoal_accuracy": lambda m: m.probes.subgoal_accuracy,
+    "violations_per_100_steps": lambda m: m.probes.violations_per_100_steps,
+    "truth_violations_per_100_steps": lambda m: m.truth.violations_per_100_steps,
+    "flips_per_step": lambda m: m.probes.flips_per_step,
+    "flips_per_step_debounced": lambda m: m.probes.flips_per_step_debounced,
+    "belief_agreement": lambda m: m.probes.belief_agreement,
+    "belief_agreement_step0": lambda m: m.probes.belief_agreement_step0,
+    "belief_agreement_gain": _gain,
+}
+"""The cognition over the held-out episodes (``cognition.<key>``), from the monitor's figures."""
+
+RUN_FIGURES: dict[str, Callable[[Evaluation], Figure]] = {
+    "layers": lambda e: len(e.layers),
+    "episodes": lambda e: e.dataset.episodes,
+    "steps": lambda e: e.dataset.steps,
+    "train_episodes": lambda e: e.split.train.episodes,
+    "test_episodes": lambda e: e.split.test.episodes,
+}
+"""The run as a whole (``run.<key>``)."""
+
+
+@dataclass
+class RunResults:
+    """The content of ``results.json``."""
+
+    model_id: str
+    """The observer whose hidden states were probed."""
+    control_model_id: str | None
+    """The control observer (None: the run had none)."""
+    vlaprobe_version: str
+    figures: dict[str, Number]
+    """Flat key -> figure (None: undefined in this run)."""
+    format: str = FORMAT
+    format_version: int = FORMAT_VERSION
+
+    def figure(self, key: str) -> Number:
+        """One figure by key; a one-line error naming the known keys' prefixes when there is no such key."""
+        if key not in self.figures:
+            roots = sorted({k.rsplit(".", 1)[0] for k in self.figures})
+            raise VlaprobeError(
+                f"no figure {key!r} in the results; known: {', '.join(roots)} (+ .value/.low/.high)"
+            )
+        return self.figures[key]
+
+
+def _put(figures: dict[str, Number], key: str, figure: Figure) -> None:
+    if isinstance(figure, Interval):
+        for name, v in asdict(figure).items():
+            figures[f"{key}.{name}"] = v
+    else:
+        figures[key] = figure
+
+
+def build_results(evaluation: Evaluation, cognition: MonitorResult | None) -> RunResults:
+    """The headline figures of one run from its evaluation and (when it ran) the cognition's figures."""
+    figures: dict[str, Number] = {}
+    for key, of_run in RUN_FIGURES.items():
+        _put(figures, f"run.{key}", of_run(evaluation))
+    for head, h in evaluation.heads.items():
+        for key, of_head in HEAD_FIGURES.items():
+            _put(figures, f"{head}.{key}", of_head(h))
+    if cognition is not None:
+        for key, of_cognition in COGNITION_FIGURES.items():
+            _put(figures, f"cognition.{key}", of_cognition(cognition))
+    observer = evaluation.controls.observer
+    return RunResults(
+        model_id=evaluation.model_id,
+        control_model_id=None if observer is None else observer.model_id,
+        vlaprobe_version=evaluation.versions.get("vlaprobe", "unknown"),
+        figures=figures,
+    )
+
+
+def write_results(folder: str | Path, results: RunResults, name: str = RESULTS_FILE) -> Path:
+    """Write ``<folder>/<name>`` (default ``results.json``) atomically; return its path."""
+    path = Path(folder) / name
+    write_atomic(path, json.dumps(asdict(results), indent=1, allow_nan=False) + "\n")
+    return path
+
+
+def read_results(path: str | Path) -> RunResults:
+    """Read a results file (or ``<folder>/results.json``); a one-line error if it is missing, damaged or of
+    another version."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / RESULTS_FILE
+    hint = "pass a run folder written by vlaprobe run, or its results.json"
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise VlaprobeError(f"no {path}; {hint}") from None
+    except (OSError, ValueError) as exc:
+        raise VlaprobeError(f"cannot read {path}: {exc}; {hint}") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise VlaprobeError(f"{path} is not a vlaprobe results file; {hint}")
+    if data.get("format_version") != FORMAT_VERSION:
+        raise VlaprobeError(
+            f"{path} is a vlaprobe results file of format version {data.get('format_version')}, this "
+            f"vlaprobe reads version {FORMAT_VERSION}; run vlaprobe run again"
+        )
+    try:
+        return dacite.from_dict(RunResults, data, config=dacite.Config(strict=True))
+    except (dacite.DaciteError, TypeError, ValueError) as exc:
+        raise VlaprobeError(f"{path} is damaged ({exc}); run vlaprobe run again") from None
+
+
+def _read_cognition(probes: Path) -> MonitorResult | None:
+    """The cognition's figures from ``<probes>/monitor.json`` (None: the run has none)."""
+    path = probes / MONITOR_FILE
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text())
+        if data.get("format") != "vlaprobe-monitor" or data.get("format_version") != 2:
+            raise ValueError("not a vlaprobe-monitor file of format version 2")
+        fields = {k: v for k, v in data.items() if k not in ("format", "format_version")}
+        return dacite.from_dict(MonitorResult, fields, config=dacite.Config(cast=[tuple], check_types=False))
+    except (OSError, ValueError, AttributeError, dacite.DaciteError) as exc:
+        raise VlaprobeError(f"cannot read {path} ({exc}); run vlaprobe monitor again") from None
+
+
+def results_from_run(run: str | Path) -> RunResults:
+    """The results of a run folder from its files (``probes/evaluation.json``, ``probes/monitor.json``): for
+    a run written before ``results.json`` existed."""
+    probes = Path(run) / "probes"
+    return build_results(read_evaluation(probes), _read_cognition(probes))
