@@ -19,7 +19,7 @@ from pathlib import Path
 
 import dacite
 
-from vlaprobe.cognition.monitor import MONITOR_FILE, MonitorResult
+from vlaprobe.cognition.monitor import MONITOR_FILE, MonitorResult, read_monitor
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import write_atomic
 from vlaprobe.probes.results import Evaluation, HeadResult, MetricSummary, read_evaluation
@@ -209,17 +209,7 @@ def read_results(path: str | Path) -> RunResults:
 
 def _read_cognition(probes: Path) -> MonitorResult | None:
     """The cognition's figures from ``<probes>/monitor.json`` (None: the run has none)."""
-    path = probes / MONITOR_FILE
-    if not path.is_file():
-        return None
-    try:
-        data = json.loads(path.read_text())
-        if data.get("format") != "vlaprobe-monitor" or data.get("format_version") != 2:
-            raise ValueError("not a vlaprobe-monitor file of format version 2")
-        fields = {k: v for k, v in data.items() if k not in ("format", "format_version")}
-        return dacite.from_dict(MonitorResult, fields, config=dacite.Config(cast=[tuple], check_types=False))
-    except (OSError, ValueError, AttributeError, dacite.DaciteError) as exc:
-        raise VlaprobeError(f"cannot read {path} ({exc}); run vlaprobe monitor again") from None
+    return read_monitor(probes) if (probes / MONITOR_FILE).is_file() else None
 
 
 def results_from_run(run: str | Path) -> RunResults:

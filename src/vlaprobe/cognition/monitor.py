@@ -1,4 +1,4 @@
-"""`vlaprobe monitor`: measure the cognition on stored episodes, fed by ground truth and by the probes.
+"""`vlaprobe cognition`: measure the cognition on stored episodes, fed by ground truth and by the probes.
 
 Each episode (default: the probes' held-out test episodes) runs twice through a fresh :class:`Cognition`: on
 the stored ground-truth atoms and on the probes' predictions (each head at its default layer, not-probed atoms at
@@ -99,7 +99,7 @@ class EpisodeFigures:
 
 @dataclass(frozen=True)
 class MonitorResult:
-    """What `vlaprobe monitor` measured (the JSON printed with --json is :meth:`summary`)."""
+    """What `vlaprobe cognition` measured (the JSON printed with --json is :meth:`summary`)."""
 
     episodes: int
     steps: int
@@ -144,7 +144,7 @@ def read_monitor(folder: str | Path) -> MonitorResult:
     import dacite
 
     path = Path(folder) / MONITOR_FILE
-    hint = "run vlaprobe monitor again"
+    hint = "run vlaprobe cognition again"
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError):

@@ -1,4 +1,4 @@
-"""Probes + hidden states -> a full assignment of every atom, the same for `vlaprobe monitor` and the live server.
+"""Probes + hidden states -> a full assignment of every atom, the same for `vlaprobe cognition` and the live server.
 
 The probes only cover the atoms that were not near-constant in training (the kept atoms); the others are
 held at their training-majority value (train frequency >= 0.5, from the probes' metadata) and marked not

@@ -32,7 +32,7 @@ class CognitionConfig:
 
 @dataclass
 class MonitorConfig:
-    """`vlaprobe monitor`: run the cognition over stored episodes on ground truth and on probe predictions."""
+    """`vlaprobe cognition`: run the cognition over stored episodes on ground truth and on probe predictions."""
 
     store: Path = Path("runs/default/activations")
     """Activation store (the --out folder of `vlaprobe collect`)."""

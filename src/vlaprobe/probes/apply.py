@@ -1,7 +1,7 @@
 """Applying linear probes to hidden states: the one implementation of ``((x - mean) / std) @ weight + bias``.
 
 Training's evaluation (:meth:`vlaprobe.probes.trainer.LinearProbes.logits`), saved probes
-(:meth:`vlaprobe.probes.probeset.ProbeSet.logits`), ``vlaprobe hypotheses``, ``vlaprobe monitor`` and the live
+(:meth:`vlaprobe.probes.probeset.ProbeSet.logits`), ``vlaprobe hypotheses``, ``vlaprobe cognition`` and the live
 server (both through :class:`vlaprobe.cognition.readout.ProbeReadout`) all call :func:`apply_probes`, so one
 step's hidden state gives the same logits, bit for bit, on every path that reads it with the same shapes.
 """

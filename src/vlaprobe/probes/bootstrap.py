@@ -1,7 +1,7 @@
 """The episode bootstrap every vlaprobe interval uses: resampling weights, percentile intervals, missing values.
 
 One implementation for ``vlaprobe train`` (``evaluation.json``), ``vlaprobe hypotheses``, ``vlaprobe
-compare-stores`` and ``vlaprobe monitor``:
+compare-stores`` and ``vlaprobe cognition``:
 
 - **Resamples** draw whole groups (test episodes) with replacement, as many as there are groups:
   :func:`bootstrap_weights` gives each resample's multiplicity of every group. A figure's value in a resample

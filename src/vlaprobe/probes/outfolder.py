@@ -27,7 +27,7 @@ if TYPE_CHECKING:
 PROBE_FILES = frozenset(
     {"probes.json", "probes.safetensors", "evaluation.json", "config.json", "monitor.json"}
 )
-"""What a probe folder holds (``monitor.json`` is written there by ``vlaprobe monitor``)."""
+"""What a probe folder holds (``monitor.json`` is written there by ``vlaprobe cognition``)."""
 
 
 PROBES_FOLDER = FolderKind(
