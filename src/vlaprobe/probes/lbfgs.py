@@ -71,6 +71,18 @@ class _Problem:
             loss = loss * self.weight
         return loss.sum(1) * self.inv_n
 
+    def data_change(self, z: torch.Tensor, sig: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
+        """``data_loss(z + delta) - data_loss(z)`` (``sig`` = sigmoid(z)), accurate relative to the change:
+        per row log1p(sig expm1(delta)) - y delta where |delta| < 1. Subtracting two float32 losses cannot
+        resolve the tiny decreases near the minimum of a strongly penalised problem, where the line search
+        then accepted steps that did not lower the objective and ran to the iteration cap."""
+        small = delta.abs() < 1
+        stable = torch.log1p(sig * torch.expm1(torch.where(small, delta, torch.zeros_like(delta))))
+        change = torch.where(small, stable, F.softplus(z + delta) - F.softplus(z)) - self.y * delta
+        if self.weight is not None:
+            change = change * self.weight
+        return change.sum(1) * self.inv_n
+
     def gradient(self, z: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
         r = torch.sigmoid(z).sub_(self.y)
         if self.weight is not None:
@@ -130,26 +142,27 @@ def _line_search(
     """
     dz = prob.logits(d)
     pw, dw = p[:, :, :-1], d[:, :, :-1]
-    ww, wd, dd = _dot(pw, pw), _dot(pw, dw), _dot(dw, dw)
+    wd, dd = _dot(pw, dw), _dot(dw, dw)
     pending = gd < 0
     accepted = torch.zeros_like(step)
     f_new = f.clone()
     cols = torch.arange(step.shape[1], device=step.device)
-    sub, zs, dzs, f_ref = prob, z, dz, f
+    sig = torch.sigmoid(z)
+    sub, zs, sigs, dzs, f_ref = prob, z, sig, dz, f
     for trial_index in range(40):
         if not bool(pending.any()):
             break
         if trial_index == 1:  # from now on, the pending columns only
             cols = torch.nonzero(pending.any(0)).flatten()
             sub, zs, dzs = prob.select(cols), z.index_select(2, cols), dz.index_select(2, cols)
-            ww, wd, dd, f_ref, gd = ww[:, cols], wd[:, cols], dd[:, cols], f[:, cols], gd[:, cols]
+            sigs = sig.index_select(2, cols)
+            wd, dd, f_ref, gd = wd[:, cols], dd[:, cols], f[:, cols], gd[:, cols]
             step, pending = step[:, cols], pending[:, cols]
-        trial = sub.data_loss(zs + step[:, None] * dzs) + 0.5 * sub.l2 * (
-            ww + 2 * step * wd + step * step * dd
-        )
-        ok = pending & (trial <= f_ref + 1e-4 * step * gd)
+        # The change of the objective, not the objective: see _Problem.data_change.
+        change = sub.data_change(zs, sigs, step[:, None] * dzs) + 0.5 * sub.l2 * step * (2 * wd + step * dd)
+        ok = pending & (change <= 1e-4 * step * gd)
         accepted[:, cols] = torch.where(ok, step, accepted[:, cols])
-        f_new[:, cols] = torch.where(ok, trial, f_new[:, cols])
+        f_new[:, cols] = torch.where(ok, f_ref + change, f_new[:, cols])
         pending &= ~ok
         step = torch.where(pending, step * 0.5, step)
     return accepted, f_new, dz
