@@ -127,6 +127,10 @@ def test_a_choice_at_the_edge_is_flagged_warned_and_recorded(
         message = fit.edge_warning(head)
         assert message is not None and f"{head}: C at the edge of its grid" in message
         assert message in caplog.text and "widen --probe.c-grid" in message
+    from vlaprobe.reports.report import _tables  # the report's page shows the same line under the headline
+
+    tables = _tables(read_evaluation(out))
+    assert all(tables[h]["c_warning"] == read_evaluation(out).heads[h].fit.edge_warning(h) for h in tables)  # type: ignore[union-attr]
     raw = json.loads((out / "evaluation.json").read_text())
     assert raw["heads"]["object"]["fit"]["c_at_edge"] == [True, True]
 
