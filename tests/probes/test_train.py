@@ -221,6 +221,8 @@ def test_evaluation_records_how_every_probe_was_fit(run: dict) -> None:
         assert fit["standardized"] and fit["cv_folds"] == 3
         assert np.array(fit["cv_loss"], float).shape == (layers, len(fit["c_grid"]))
         assert set(fit["c"]) <= set(fit["c_grid"])  # one C per layer, chosen from the grid
+        assert np.array(fit["cv_score"], float).shape == (layers, len(fit["c_grid"]))
+        assert len(fit["c_at_edge"]) == layers and "balanced accuracy" in fit["c_rule"]
 
 
 def test_probes_stopped_at_the_cap_are_counted_and_warned_about(

@@ -176,16 +176,40 @@ def test_backtracking_columns_alone_give_the_same_probes(
     targets = torch.as_tensor(y[train], dtype=torch.float32)
     l2 = torch.full((2, y.shape[1]), 1e-2)
     widths: list[int] = []
-    data_loss = lbfgs._Problem.data_loss
+    data_change = lbfgs._Problem.data_change  # the line search's trial
 
-    def counting(self: lbfgs._Problem, z: torch.Tensor) -> torch.Tensor:
+    def counting(
+        self: lbfgs._Problem, z: torch.Tensor, sig: torch.Tensor, delta: torch.Tensor
+    ) -> torch.Tensor:
         widths.append(z.shape[-1])
-        return data_loss(self, z)
+        return data_change(self, z, sig, delta)
 
-    monkeypatch.setattr(lbfgs._Problem, "data_loss", counting)
-    *_, conv = lbfgs.fit_logistic(x, targets, l2, tol=1e-5, max_iter=500)
+    monkeypatch.setattr(lbfgs._Problem, "data_change", counting)
+    *_, conv = lbfgs.fit_logistic(x, targets, l2, tol=1e-7, max_iter=300)
     assert not conv.converged.any()  # so no column left the working set: every narrower pass was a halving
     assert min(widths) < y.shape[1]  # some halvings went on with the pending columns only
     for j in (0, y.shape[1] - 1):
-        *_, alone = lbfgs.fit_logistic(x, targets[:, j : j + 1], l2[:, j : j + 1], tol=1e-5, max_iter=500)
+        *_, alone = lbfgs.fit_logistic(x, targets[:, j : j + 1], l2[:, j : j + 1], tol=1e-7, max_iter=300)
         np.testing.assert_allclose(alone.loss[:, 0], conv.loss[:, j], rtol=1e-5)
+
+
+def test_the_line_search_measures_the_change_of_the_loss_not_a_difference_of_two_losses() -> None:
+    from vlaprobe.probes import lbfgs
+
+    softplus = torch.nn.functional.softplus
+    gen = torch.Generator().manual_seed(0)
+    n, k = 500, 4
+    y = (torch.rand((n, k), generator=gen) < 0.3).float()
+    z = 3 * torch.randn((1, n, k), generator=gen)
+    prob = lbfgs._Problem(
+        torch.zeros((1, n, 1)), y, None, torch.full((k,), 1.0 / n), torch.ones((1, k)), torch.zeros((1, 1, 1))
+    )
+    for scale in (1e-6, 1e-2, 3.0):  # tiny steps near a minimum, ordinary ones, and |delta| > 1
+        delta = scale * torch.randn((1, n, k), generator=gen)
+        zd, dd = z.double(), delta.double()
+        exact = (softplus(zd + dd) - softplus(zd) - y.double() * dd).sum(1) / n
+        ours = prob.data_change(z, torch.sigmoid(z), delta).double()
+        np.testing.assert_allclose(ours, exact, rtol=1e-4)
+        if scale == 1e-6:  # where the difference of two float32 losses is mostly round-off
+            naive = (prob.data_loss(z + delta) - prob.data_loss(z)).double()
+            assert (abs(naive - exact) > 0.05 * abs(exact)).any()

@@ -130,6 +130,8 @@ def check_train(cfg: TrainConfig, prefix: str = "") -> None:
         raise VlaprobeError(f"{f('probe.c_grid')} needs positive finite values, got {list(p.c_grid)}")
     if len(p.c_grid) > 1:
         at_least(p.cv_folds, 2, f("probe.cv_folds"), " (or give one value to --probe.c-grid)")
+    if not (math.isfinite(p.c_tolerance) and p.c_tolerance >= 0):
+        raise VlaprobeError(f"{f('probe.c_tolerance')} must be a finite number >= 0, got {p.c_tolerance}")
     if not (math.isfinite(p.tol) and p.tol > 0):
         raise VlaprobeError(f"{f('probe.tol')} must be a positive finite number, got {p.tol}")
     at_least(p.max_iter, 1, f("probe.max_iter"))

@@ -40,10 +40,15 @@ class ProbeConfig:
     standardize: bool = True
     """Scale each feature to zero mean and unit variance with training-split statistics (saved with the probes
     and applied at readout). Without it the layers' very different activation scales decide the fit."""
-    c_grid: tuple[float, ...] = (0.01, 0.1, 1.0)
+    c_grid: tuple[float, ...] = (1e-4, 1e-3, 1e-2, 0.1, 1.0, 10.0, 100.0)
     """Inverse L2 strengths C (scikit-learn's convention: penalty ||w||^2 / 2 against C x summed log-loss) from
-    which episode-grouped cross-validation on the training split picks one per layer and head (lowest mean
-    held-out log-loss over the head's atoms; ties: the stronger penalty). One value: no cross-validation."""
+    which episode-grouped cross-validation on the training split picks one per layer and head: the highest
+    mean held-out balanced accuracy over the head's atoms and the folds, the smallest C within
+    --probe.c-tolerance of it. A choice at either end of the grid is warned about (``fit.c_at_edge``): widen
+    the grid. One value: no cross-validation."""
+    c_tolerance: float = 0.005
+    """C's whose cross-validated balanced accuracy is within this of the best one tie; the strongest penalty
+    (smallest C) of them is chosen."""
     cv_folds: int = 3
     """Folds of that cross-validation, by whole training episodes, stratified by task."""
     tol: float = 1e-4

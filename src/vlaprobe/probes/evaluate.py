@@ -145,17 +145,29 @@ def probe_fit(fitted: CrossFit, cols: np.ndarray, cfg: TrainConfig) -> ProbeFit:
     conv = probes.convergence
     assert conv is not None and probes.c is not None
     conv = conv.columns(cols)
-    cv_loss = None
+    cv_loss = cv_score = c_at_edge = None
+    rule = "one C given, not cross-validated"
     if probes.cv is not None and len(cols):
-        cv_loss = nested(probes.cv.of_group(int(fitted.column_head[cols[0]]))[0])
+        group = int(fitted.column_head[cols[0]])
+        cv_loss = nested(probes.cv.of_group(group)[0])
+        score = probes.cv.score_of(group)
+        cv_score = None if score is None else nested(score)
+        c_at_edge = [bool(e) for e in probes.cv.edge_of(group)]
+        rule = (
+            f"the smallest C whose mean held-out balanced accuracy over the head's atoms and {probes.cv.folds} "
+            f"episode-grouped folds of the training split is within {probes.cv.tolerance:g} of the best C's"
+        )
     return ProbeFit(
         tol=conv.tol,
         max_iter=conv.max_iter,
         standardized=probes.mean is not None,
-        c=nested(probes.c[:, cols[0]] if len(cols) else np.zeros(0)),
+        c=[float(c) for c in probes.c[:, cols[0]]] if len(cols) else [],  # not rounded: C may be < 1e-5
         c_grid=[float(c) for c in cfg.probe.c_grid],
         cv_folds=0 if probes.cv is None else probes.cv.folds,
         cv_loss=cv_loss,
+        cv_score=cv_score,
+        c_rule=rule,
+        c_at_edge=c_at_edge,
         iterations=nested(conv.iterations),
         loss=nested(conv.loss),
         grad_norm=nested(conv.grad_norm),

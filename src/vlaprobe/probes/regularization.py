@@ -1,17 +1,25 @@
 """The L2 strength of the probes, chosen by cross-validation over whole training episodes.
 
-Per layer and head, one inverse strength C from a small grid (``ProbeConfig.c_grid``), shared by the head's
-atoms: the one with the lowest held-out log-loss, averaged over the head's atoms and the folds. The folds
-divide the *training* episodes (stratified by task, as the train/test split), so the test episodes never
-influence C. Per C, every (fold, atom) is one column of a single batched fit
+Per layer and head, one inverse strength C from a log-spaced grid (``ProbeConfig.c_grid``, default 1e-4 to
+1e2), shared by the head's atoms. Every C is scored by the metric the report selects layers by: the held-out
+**balanced accuracy** at the probes' threshold (:func:`~vlaprobe.probes.metrics.metrics_from_counts`),
+averaged over the head's scored atoms and the folds. The chosen C is the strongest penalty (smallest C)
+whose score is within ``ProbeConfig.c_tolerance`` of the grid's best score: balanced accuracy is flat where
+the predictions stop changing (all majority at strong penalties, a plateau at weak ones), and among C's the
+folds cannot tell apart the smaller one is the simpler probe. A choice at either end of the grid means the
+optimum may lie outside it: :meth:`CrossValidation.edge_of` flags it and ``vlaprobe train`` warns.
+
+The folds divide the *training* episodes (stratified by task, as the train/test split), so the test episodes
+never influence C. Per C, every (fold, atom) is one column of a single batched fit
 (:func:`~vlaprobe.probes.lbfgs.fit_logistic`), its fold's held-out rows weighted 0; the grid runs from the
 strongest penalty to the weakest, each fit starting from the previous one's solution (a warm start: the
 same minimiser, fewer iterations). The features are those of the final fit (standardised with the whole
-training split's statistics, which use no label).
+training split's statistics, which use no label). The held-out log-loss is recorded too (``loss``).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,6 +28,7 @@ import torch.nn.functional as F
 
 from vlaprobe.configs.train import ProbeConfig
 from vlaprobe.probes.lbfgs import fit_logistic, l2_of_c
+from vlaprobe.probes.metrics import confusion_by_group, metrics_from_counts
 from vlaprobe.probes.split import split_episodes
 
 
@@ -34,7 +43,7 @@ class ColumnGroups:
     group: np.ndarray
     """int (columns,): columns with the same id share one C per layer (e.g. the atoms of one head)."""
     scored: np.ndarray
-    """bool (columns,): columns whose held-out loss chooses their group's C (the real atoms, not the
+    """bool (columns,): columns whose held-out score chooses their group's C (the real atoms, not the
     shuffled-label copies, which take the C of their group)."""
 
 
@@ -43,6 +52,7 @@ class CrossValidation:
     """What the cross-validation measured and chose."""
 
     grid: list[float]
+    """The C values, ascending (strongest penalty first)."""
     folds: int
     """Folds actually used (fewer than asked when there are fewer training episodes)."""
     loss: np.ndarray
@@ -51,24 +61,87 @@ class CrossValidation:
     """(layers, groups): the chosen C."""
     ids: np.ndarray
     """The group id of each entry of the groups axis."""
+    score: np.ndarray | None = None
+    """(layers, groups, grid): mean held-out balanced accuracy over the group's scored atoms and the folds
+    (the selection criterion)."""
+    tolerance: float = 0.0
+    """The chosen C is the smallest whose score is at least the best score minus this."""
+    fold_test: tuple[np.ndarray, ...] = ()
+    """Per fold, the held-out training episodes (positions in the data's episode list)."""
+
+    def _index(self, group: int) -> int:
+        return int(np.searchsorted(self.ids, group))
 
     def of_group(self, group: int) -> tuple[np.ndarray, np.ndarray]:
         """(loss (layers, grid), chosen C (layers,)) of one column group."""
-        i = int(np.searchsorted(self.ids, group))
+        i = self._index(group)
         return self.loss[:, i], self.chosen[:, i]
 
+    def score_of(self, group: int) -> np.ndarray | None:
+        """(layers, grid) mean held-out balanced accuracy of one column group."""
+        return None if self.score is None else self.score[:, self._index(group)]
 
-def _held_out_loss(
-    x: torch.Tensor, y: torch.Tensor, w: torch.Tensor, b: torch.Tensor, held: torch.Tensor, chunk: int = 2
-) -> np.ndarray:
-    """(layers, columns) mean log-loss over each column's held-out rows (``held`` (rows, columns) float 0/1)."""
-    out = np.empty(b.shape)
-    count = held.sum(0).clamp_min(1.0)
-    for start in range(0, x.shape[0], chunk):
-        part = slice(start, start + chunk)
-        z = torch.baddbmm(b[part, None].to(x.device), x[part], w[part].to(x.device))
-        loss = (F.softplus(z) - y * z) * held
-        out[part] = (loss.sum(1) / count).cpu().numpy()
+    def edge_of(self, group: int) -> np.ndarray:
+        """bool (layers,): the group's chosen C is the grid's smallest or largest (never with one C)."""
+        chosen = self.chosen[:, self._index(group)]
+        if len(self.grid) < 2:
+            return np.zeros(len(chosen), bool)
+        return (chosen == self.grid[0]) | (chosen == self.grid[-1])
+
+
+def select_c(score: np.ndarray, grid: list[float], tolerance: float) -> np.ndarray:
+    """Per entry of ``score`` (..., grid), the smallest C of ascending ``grid`` scoring at least the best
+    score minus ``tolerance`` (the largest C where no C has a defined score)."""
+    filled = np.where(np.isnan(score), -np.inf, score)
+    best = filled.max(-1, keepdims=True)
+    good = filled >= best - tolerance
+    index = np.where(np.isfinite(best[..., 0]), np.argmax(good, -1), len(grid) - 1)
+    return np.asarray(grid)[index]
+
+
+def _held_out(
+    x: torch.Tensor,
+    truth: np.ndarray,
+    w: torch.Tensor,
+    b: torch.Tensor,
+    fold_rows: list[np.ndarray],
+    threshold_logit: float,
+    chunk: int = 2,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(layers, folds, scored) held-out log-loss and balanced accuracy of each fold's columns on its rows.
+
+    Fold f's probes are the columns ``f * scored ... (f + 1) * scored`` of ``w``, ``b``; its held-out rows are
+    ``fold_rows[f]``; ``truth`` is bool (rows, scored).
+    """
+    num_layers, scored = x.shape[0], truth.shape[1]
+    loss = np.empty((num_layers, len(fold_rows), scored))
+    balanced = np.empty_like(loss)
+    y = torch.as_tensor(truth, dtype=torch.float32, device=x.device)
+    for start in range(0, num_layers, chunk):
+        part = slice(start, min(num_layers, start + chunk))
+        for f, rows in enumerate(fold_rows):
+            cols = slice(f * scored, (f + 1) * scored)
+            index = torch.as_tensor(rows, dtype=torch.long, device=x.device)
+            z = torch.baddbmm(
+                b[part, None, cols].to(x.device),
+                x[part].index_select(1, index),
+                w[part, :, cols].to(x.device),
+            )
+            loss[part, f] = (F.softplus(z) - y[index] * z).mean(1).cpu().numpy()
+            counts = confusion_by_group((z > threshold_logit).cpu(), truth[rows], np.zeros(len(rows)), 1)
+            balanced[part, f] = metrics_from_counts(counts[0])["balanced_accuracy"]
+    return loss, balanced
+
+
+def _group_mean(x: np.ndarray, scored_group: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """(layers, grid, folds, scored) -> (layers, groups, grid): mean over the folds and each group's atoms,
+    leaving out undefined (NaN) entries."""
+    out = np.full((x.shape[0], len(ids), x.shape[1]), np.nan)
+    for i, g in enumerate(ids):
+        part = x[..., scored_group == g].reshape(x.shape[0], x.shape[1], -1)
+        defined = ~np.isnan(part)
+        with np.errstate(invalid="ignore"):
+            out[:, i] = np.where(defined.any(-1), np.nansum(part, -1) / defined.sum(-1), np.nan)
     return out
 
 
@@ -91,12 +164,14 @@ def choose_c(
     row_episode = np.searchsorted(episodes, groups.episode[rows])
     scored = np.flatnonzero(groups.scored)
     ys = y[:, scored]
-    masks = [
-        torch.as_tensor(np.isin(row_episode, f.train), dtype=torch.float32, device=x.device) for f in folds
-    ]
+    in_fold = [np.isin(row_episode, f.train) for f in folds]
+    masks = [torch.as_tensor(m, dtype=torch.float32, device=x.device) for m in in_fold]
     weight = torch.cat([m[:, None].expand(-1, len(scored)) for m in masks], 1)  # (rows, folds * scored)
     targets = ys.repeat(1, len(folds))
-    held, start = [], None
+    truth = ys.cpu().numpy() > 0.5
+    held_rows = [np.flatnonzero(~m) for m in in_fold]
+    threshold_logit = math.log(cfg.threshold / (1 - cfg.threshold))
+    losses, scores, start = [], [], None
     for c in grid:  # ascending: each C starts from the solution of the stronger penalty before it
         l2 = np.concatenate([np.full(len(scored), l2_of_c(c, float(m.sum()))) for m in masks])
         l2_t = torch.as_tensor(l2, dtype=torch.float32)[None].expand(num_layers, -1).contiguous()
@@ -112,10 +187,15 @@ def choose_c(
             init=start,
         )
         start = (w, b)
-        held.append(_held_out_loss(x, targets, w, b, 1.0 - weight))  # (layers, folds * scored)
-    mean_held = np.stack(held, 1).reshape(num_layers, len(grid), len(folds), len(scored)).mean(2)
+        loss, balanced = _held_out(x, truth, w, b, held_rows, threshold_logit)
+        losses.append(loss)
+        scores.append(balanced)
     scored_group = groups.group[scored]
-    loss = np.stack([mean_held[:, :, scored_group == g].mean(2) for g in ids], 1)  # (layers, groups, grid)
-    chosen = np.asarray(grid)[np.argmin(loss, axis=2)]  # first minimum: the smallest C, strongest penalty
+    loss = _group_mean(np.stack(losses, 1), scored_group, ids)  # (layers, groups, grid)
+    score = _group_mean(np.stack(scores, 1), scored_group, ids)
+    chosen = select_c(score, grid, cfg.c_tolerance)
     per_column = chosen[:, np.searchsorted(ids, groups.group)]
-    return CrossValidation(grid, len(folds), loss, chosen, ids), per_column
+    cv = CrossValidation(
+        grid, len(folds), loss, chosen, ids, score, cfg.c_tolerance, tuple(episodes[f.test] for f in folds)
+    )
+    return cv, per_column

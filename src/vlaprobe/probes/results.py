@@ -165,6 +165,25 @@ class ProbeFit:
     stalled: int = 0
     """Probes that stopped above ``tol`` before the cap, where no step lowered the objective (float32
     round-off near the minimum)."""
+    cv_score: Nested | None = None
+    """(layers, grid) mean held-out balanced accuracy of each C (the selection criterion), or None."""
+    c_rule: str = ""
+    """How C was chosen from ``cv_score``."""
+    c_at_edge: list[bool] | None = None
+    """(layers,) the chosen C is the grid's smallest or largest: the best C may lie outside the grid (None:
+    not recorded, C not cross-validated)."""
+
+    def edge_warning(self, head: str) -> str | None:
+        """One line when the chosen C sits at an end of the grid at some layer, else None."""
+        if not self.c_at_edge or not any(self.c_at_edge):
+            return None
+        edge = [i for i, e in enumerate(self.c_at_edge) if e]
+        values = sorted({float(self.c[i]) for i in edge if isinstance(self.c[i], (int, float))})
+        return (
+            f"{head}: C at the edge of its grid ({min(self.c_grid):g} to {max(self.c_grid):g}) at "
+            f"{len(edge)} of {len(self.c_at_edge)} layers (C = {', '.join(f'{v:g}' for v in values)}): "
+            "the best C may lie outside the grid; widen --probe.c-grid"
+        )
 
 
 @dataclass

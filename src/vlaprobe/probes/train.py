@@ -40,6 +40,7 @@ from vlaprobe.probes.results import (
     Evaluation,
     HeadResult,
     ObserverInfo,
+    ProbeFit,
     SkippedHead,
     read_evaluation,
     write_evaluation,
@@ -128,6 +129,7 @@ def train_on_data(
         h: evaluate_head(h, data, filters[h], columns[h], fitted, targets, weights, threshold_logit, cfg)
         for h in heads
     }
+    _warn_c_at_edge({h: r.fit for h, r in head_results.items()})
     observer_info = None
     if observer is not None:
         log.info("observer control: %s", observer.model_id)
@@ -245,6 +247,14 @@ def _warn_at_cap(probes: LinearProbes) -> None:
         )
 
 
+def _warn_c_at_edge(fits: dict[str, ProbeFit | None]) -> None:
+    """Warn, per head, when the cross-validated C sits at an end of its grid at some layer."""
+    for head, fit in fits.items():
+        message = None if fit is None else fit.edge_warning(head)
+        if message:
+            log.warning("%s", message)
+
+
 def _tensors(
     probes: LinearProbes, heads: list[str], columns: dict[str, np.ndarray]
 ) -> dict[str, torch.Tensor]:
@@ -344,6 +354,7 @@ def _observer(
         r = evaluate_head(
             h, observer, filters[h], columns[h], fitted, targets, obs_weights, threshold_logit, cfg
         )
+        _warn_c_at_edge({f"{h} (observer {observer.model_id})": r.fit})
         head_results[h].observer = r.probe
         head_results[h].observer_best = r.best
     return ObserverInfo(

@@ -159,6 +159,7 @@ def _tables(evaluation: Evaluation) -> JsonObject:
             "best_layer": _best_table(h, evaluation.metrics),
             "dropped": [d.__dict__ for d in h.dropped],
             "skipped_predicates": h.skipped_predicates,
+            "c_warning": None if h.fit is None else h.fit.edge_warning(head),
         }
         for head, h in evaluation.heads.items()
     }
