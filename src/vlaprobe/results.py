@@ -169,7 +169,7 @@ def build_results(evaluation: Evaluation, cognition: MonitorResult | None) -> Ru
     return RunResults(
         model_id=evaluation.model_id,
         control_model_id=None if observer is None else observer.model_id,
-        vlaprobe_version=evaluation.versions.get("vlaprobe", "unknown"),
+        vlaprobe_version=evaluation.versions.get("vlaprobe") or "unknown",
         figures=figures,
     )
 
