@@ -66,6 +66,33 @@ def _control_best(h: HeadResult) -> Interval:
     return UNDEFINED if b is None else Interval(b.value, b.low, b.high)
 
 
+def _tied(h: HeadResult) -> list[int]:
+    return h.best.tied or [h.best.layer]
+
+
+def _max_gain_index(h: HeadResult, baseline: str) -> int | None:
+    """Position of the layer with the largest conditional-probing gain over ``baseline`` (None: not fit)."""
+    c = h.conditional().get(baseline)
+    values = [] if c is None else [(v, i) for i, v in enumerate(c.gain.value) if isinstance(v, (int, float))]
+    return max(values)[1] if values else None
+
+
+def _gain_at(h: HeadResult, layers: list[int], baseline: str, field: str) -> Figure:
+    """The largest gain of conditional probing over ``baseline`` (``gain``: with its interval; ``layer``: where;
+    ``features``: the baseline-features probe alone; ``layers_above``: layers whose gain interval is above 0)."""
+    c, i = h.conditional().get(baseline), _max_gain_index(h, baseline)
+    if c is None or i is None:
+        return UNDEFINED if field == "gain" else None
+    if field == "gain":
+        return Interval(c.gain.value[i], c.gain.low[i], c.gain.high[i])
+    if field == "layer":
+        return layers[i]
+    if field == "features":
+        v = c.features.value[0]
+        return v if isinstance(v, (int, float)) else None
+    return sum(isinstance(low, (int, float)) and low > 0 for low in c.gain.low)
+
+
 HEAD_FIGURES: dict[str, Callable[[HeadResult], Figure]] = {
     "atoms": lambda h: len(h.atoms),
     "best.layer": lambda h: h.best.layer,
@@ -78,9 +105,24 @@ HEAD_FIGURES: dict[str, Callable[[HeadResult], Figure]] = {
     "selectivity_task_time": lambda h: _at_best(h, "selectivity_task_time"),
     "control.best.layer": lambda h: None if h.observer_best is None else h.observer_best.layer,
     "control.best": _control_best,
+    "tied.count": lambda h: len(_tied(h)),
+    "tied.first": lambda h: min(_tied(h)),
+    "tied.last": lambda h: max(_tied(h)),
 }
 """Per head (``<head>.<key>``): figures of ``evaluation.json`` at the head's best layer. ``control`` is the
-control observer (the untrained network), ``shuffled`` the shuffled-label control."""
+control observer (the untrained network), ``shuffled`` the shuffled-label control; ``tied`` the layers
+statistically tied with the best (``tied.first`` is the default layer)."""
+
+def _conditional_figure(baseline: str, field: str) -> Callable[[HeadResult, list[int]], Figure]:
+    return lambda h, layers: _gain_at(h, layers, baseline, field)
+
+
+HEAD_LAYER_FIGURES: dict[str, Callable[[HeadResult, list[int]], Figure]] = {
+    f"conditional_{b}.{f}": _conditional_figure(b, f)
+    for b in ("task", "task_time")
+    for f in ("gain", "layer", "features", "layers_above")
+}
+"""Per head: conditional probing over the task and task x time baselines, at the layer of the largest gain."""
 
 
 def _detected(m: MonitorResult) -> int:
@@ -162,6 +204,8 @@ def build_results(evaluation: Evaluation, cognition: MonitorResult | None) -> Ru
     for head, h in evaluation.heads.items():
         for key, of_head in HEAD_FIGURES.items():
             _put(figures, f"{head}.{key}", of_head(h))
+        for key, of_head_layers in HEAD_LAYER_FIGURES.items():
+            _put(figures, f"{head}.{key}", of_head_layers(h, evaluation.layers))
     if cognition is not None:
         for key, of_cognition in COGNITION_FIGURES.items():
             _put(figures, f"cognition.{key}", of_cognition(cognition))
