@@ -22,6 +22,7 @@ from vlaprobe.results import (
     COGNITION_FIGURES,
     FORMAT_VERSION,
     HEAD_FIGURES,
+    HEAD_LAYER_FIGURES,
     RESULTS_FILE,
     RUN_FIGURES,
     build_results,
@@ -79,7 +80,7 @@ def test_results_carry_the_evaluation_and_cognition_figures(run: Path) -> None:
         k.rsplit(".", 1)[0] if k.rsplit(".", 1)[-1] in ("value", "low", "high") else k
         for k in results.figures
     }
-    assert roots == {f"{h}.{k}" for h in evaluation.heads for k in HEAD_FIGURES} | {
+    assert roots == {f"{h}.{k}" for h in evaluation.heads for k in (*HEAD_FIGURES, *HEAD_LAYER_FIGURES)} | {
         f"cognition.{k}" for k in COGNITION_FIGURES
     } | {f"run.{k}" for k in RUN_FIGURES}
     assert results.figure("object.control.best.value") is None  # this run had no control observer
