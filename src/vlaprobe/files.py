@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
-from typing import Any, TypeAlias
+from typing import Any, TypeAlias, TypeVar
+
+import dacite
+
+from vlaprobe.errors import VlaprobeError
 
 Json: TypeAlias = Any
 """A JSON value as ``json.loads`` returns it (object, list, string, number, bool, null). Only at the edges: files
@@ -150,3 +155,44 @@ def check_owned_folder(out: str | Path, kind: FolderKind, flag: str = "--out") -
 def mark_folder(out: str | Path, owner: str) -> None:
     """Leave ``owner``'s marker in ``out`` (created if needed): the folder is the command's from now on."""
     write_atomic(Path(out) / OWNER_FILE, owner + "\n")
+
+
+T = TypeVar("T")
+
+
+def read_versioned(
+    path: Path, fmt: str, what: str, versions: Collection[int], hint: str, unversioned: int | None = None
+) -> tuple[JsonObject, int]:
+    """The JSON object of one of vlaprobe's versioned files and its format version, or a one-line error.
+
+    ``fmt`` is the file's ``format`` and ``versions`` the ``format_version`` values this vlaprobe reads;
+    ``unversioned`` is the version of a file written before it carried ``format``/``format_version`` (None:
+    such a file is refused). The object is returned as it was read, ``format`` keys included.
+    """
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise VlaprobeError(f"no {path}; {hint}") from None
+    except (OSError, ValueError) as exc:
+        raise VlaprobeError(f"cannot read {path}: {exc}; {hint}") from None
+    unversioned_format = fmt if unversioned is not None else None
+    if not isinstance(data, dict) or data.get("format", unversioned_format) != fmt:
+        raise VlaprobeError(f"{path} is not a vlaprobe {what}; {hint}")
+    version = data.get("format_version", unversioned)
+    if not isinstance(version, int) or version not in versions:
+        reads = ", ".join(str(v) for v in sorted(versions))
+        raise VlaprobeError(
+            f"{path} is a vlaprobe {what} of format version {version}, this vlaprobe reads version(s) {reads}; "
+            f"{hint}"
+        )
+    return data, version
+
+
+def from_json(
+    cls: type[T], data: JsonObject, path: Path, hint: str, config: dacite.Config | None = None
+) -> T:
+    """``cls`` built from a file's JSON object (dacite), or a one-line error naming the damaged file."""
+    try:
+        return dacite.from_dict(cls, data, config=config or dacite.Config(check_types=False))
+    except (dacite.DaciteError, TypeError, ValueError, KeyError, AttributeError) as exc:
+        raise VlaprobeError(f"{path} is damaged ({exc}); {hint}") from None

@@ -21,7 +21,7 @@ import dacite
 
 from vlaprobe.cognition.monitor import MONITOR_FILE, MonitorResult, read_monitor
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import write_atomic
+from vlaprobe.files import from_json, read_versioned, write_atomic
 from vlaprobe.probes.results import Evaluation, HeadResult, MetricSummary, read_evaluation
 
 FORMAT = "vlaprobe-results"
@@ -112,6 +112,7 @@ HEAD_FIGURES: dict[str, Callable[[HeadResult], Figure]] = {
 """Per head (``<head>.<key>``): figures of ``evaluation.json`` at the head's best layer. ``control`` is the
 control observer (the untrained network), ``shuffled`` the shuffled-label control; ``tied`` the layers
 statistically tied with the best (``tied.first`` is the default layer)."""
+
 
 def _conditional_figure(baseline: str, field: str) -> Callable[[HeadResult, list[int]], Figure]:
     return lambda h, layers: _gain_at(h, layers, baseline, field)
@@ -231,24 +232,9 @@ def read_results(path: str | Path) -> RunResults:
     path = Path(path)
     if path.is_dir():
         path = path / RESULTS_FILE
-    hint = "pass a run folder written by vlaprobe run, or its results.json"
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise VlaprobeError(f"no {path}; {hint}") from None
-    except (OSError, ValueError) as exc:
-        raise VlaprobeError(f"cannot read {path}: {exc}; {hint}") from None
-    if not isinstance(data, dict) or data.get("format") != FORMAT:
-        raise VlaprobeError(f"{path} is not a vlaprobe results file; {hint}")
-    if data.get("format_version") != FORMAT_VERSION:
-        raise VlaprobeError(
-            f"{path} is a vlaprobe results file of format version {data.get('format_version')}, this "
-            f"vlaprobe reads version {FORMAT_VERSION}; run vlaprobe run again"
-        )
-    try:
-        return dacite.from_dict(RunResults, data, config=dacite.Config(strict=True))
-    except (dacite.DaciteError, TypeError, ValueError) as exc:
-        raise VlaprobeError(f"{path} is damaged ({exc}); run vlaprobe run again") from None
+    hint = "pass a run folder written by vlaprobe run (run it again), or its results.json"
+    data, _ = read_versioned(path, FORMAT, "results file", (FORMAT_VERSION,), hint)
+    return from_json(RunResults, data, path, hint, dacite.Config(strict=True))
 
 
 def _read_cognition(probes: Path) -> MonitorResult | None:

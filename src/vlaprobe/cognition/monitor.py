@@ -18,13 +18,14 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import dacite
 import numpy as np
 
 from vlaprobe.cognition.core import Cognition, CognitionStep
 from vlaprobe.cognition.readout import HEADS, ProbeReadout
 from vlaprobe.configs.monitor import CognitionConfig, MonitorConfig
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import JsonObject, write_atomic
+from vlaprobe.files import JsonObject, from_json, read_versioned, write_atomic
 from vlaprobe.probes.bootstrap import bootstrap_weights, interval, resample_sums
 
 if TYPE_CHECKING:
@@ -140,30 +141,19 @@ def write_monitor(folder: str | Path, result: MonitorResult) -> Path:
 
 
 def read_monitor(folder: str | Path) -> MonitorResult:
-    """Read ``<folder>/monitor.json``; a one-line error if it is missing, damaged or of an unknown version."""
-    import dacite
-
+    """Read ``<folder>/monitor.json``; a one-line error if it is missing, damaged or of an unknown version
+    (a file without a version reads as version 1, whose episodes did not count false alarms: 0)."""
     path = Path(folder) / MONITOR_FILE
     hint = "run vlaprobe cognition again"
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
-        raise VlaprobeError(f"cannot read {path}; {hint}") from None
-    if not isinstance(data, dict) or data.pop("format", MONITOR_FORMAT) != MONITOR_FORMAT:
-        raise VlaprobeError(f"{path} is not a vlaprobe monitor file; {hint}")
-    version = data.pop("format_version", 1)
-    if version not in (1, MONITOR_FORMAT_VERSION):
-        raise VlaprobeError(
-            f"{path} is a monitor file of format version {version}, this vlaprobe reads versions 1 and "
-            f"{MONITOR_FORMAT_VERSION}; {hint}"
-        )
+    data, version = read_versioned(
+        path, MONITOR_FORMAT, "monitor file", (1, MONITOR_FORMAT_VERSION), hint, unversioned=1
+    )
+    data = {k: v for k, v in data.items() if k not in ("format", "format_version")}
     if version == 1:
         for episode in data.get("per_episode") or []:
-            episode.setdefault("false_alarms", 0)
-    try:
-        return dacite.from_dict(MonitorResult, data, config=dacite.Config(check_types=False, cast=[tuple]))
-    except (dacite.DaciteError, TypeError, ValueError, AttributeError) as exc:
-        raise VlaprobeError(f"{path} is damaged ({exc}); {hint}") from None
+            if isinstance(episode, dict):
+                episode.setdefault("false_alarms", 0)
+    return from_json(MonitorResult, data, path, hint, dacite.Config(check_types=False, cast=[tuple]))
 
 
 @dataclass

@@ -19,7 +19,7 @@ import numpy as np
 
 from vlaprobe.configs.hypotheses import HypothesesConfig
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import write_atomic
+from vlaprobe.files import from_json, read_versioned, write_atomic
 from vlaprobe.probes.bootstrap import bootstrap_weights
 from vlaprobe.probes.hypotheses import Hypotheses, LayerCurves, answer_hypotheses, curves_from_counts
 from vlaprobe.probes.metrics import confusion_by_group
@@ -44,23 +44,9 @@ def read_hypotheses(folder: str | Path) -> Hypotheses:
     """Read ``<folder>/hypotheses.json``; a one-line error if it is missing, damaged or of an unknown version."""
     path = Path(folder) / FILE
     hint = "run vlaprobe hypotheses --probes on the folder again"
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
-        raise VlaprobeError(f"cannot read {path}; {hint}") from None
-    if not isinstance(data, dict) or data.get("format", FORMAT) != FORMAT:
-        raise VlaprobeError(f"{path} is not a vlaprobe hypotheses file; {hint}")
-    version = data.pop("format_version", 1)
-    data.pop("format", None)
-    if version != FORMAT_VERSION:
-        raise VlaprobeError(
-            f"{path} is a hypotheses file of format version {version}, this vlaprobe reads version "
-            f"{FORMAT_VERSION}; {hint}"
-        )
-    try:
-        return dacite.from_dict(Hypotheses, data, config=dacite.Config(check_types=False, cast=[tuple]))
-    except (dacite.DaciteError, TypeError, ValueError) as exc:
-        raise VlaprobeError(f"{path} is damaged ({exc}); {hint}") from None
+    data, _ = read_versioned(path, FORMAT, "hypotheses file", (FORMAT_VERSION,), hint, unversioned=1)
+    data = {k: v for k, v in data.items() if k not in ("format", "format_version")}
+    return from_json(Hypotheses, data, path, hint, dacite.Config(check_types=False, cast=[tuple]))
 
 
 def run_curves(

@@ -16,10 +16,8 @@ import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import dacite
-
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import JsonObject, write_atomic
+from vlaprobe.files import JsonObject, from_json, read_versioned, write_atomic
 from vlaprobe.probes.results import DroppedAtom
 
 FORMAT = "vlaprobe-probes"
@@ -107,21 +105,8 @@ def write_probes_meta(folder: str | Path, meta: ProbesMeta) -> Path:
 def read_probes_meta(folder: str | Path) -> ProbesMeta:
     """Read ``<folder>/probes.json``; a one-line error if it is missing, damaged or of an unknown version."""
     path = Path(folder) / META_FILE
-    hint = "pass the folder written by vlaprobe train"
     if not path.is_file():
-        raise VlaprobeError(f"no {META_FILE} in {folder}; {hint}")
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise VlaprobeError(f"cannot read {path}: {exc}; run vlaprobe train again") from None
-    if not isinstance(data, dict) or data.get("format") != FORMAT:
-        raise VlaprobeError(f"{path} is not a vlaprobe probe file; {hint}")
-    if data.get("format_version") not in READS:
-        raise VlaprobeError(
-            f"{path} has probe format version {data.get('format_version')}, this vlaprobe reads "
-            f"{', '.join(map(str, READS))}; retrain the probes with this version or use a newer vlaprobe"
-        )
-    try:
-        return dacite.from_dict(ProbesMeta, data, config=dacite.Config(check_types=False))
-    except (dacite.DaciteError, TypeError, ValueError, KeyError) as exc:
-        raise VlaprobeError(f"{path} is damaged ({exc}); run vlaprobe train again") from None
+        raise VlaprobeError(f"no {META_FILE} in {folder}; pass the folder written by vlaprobe train")
+    hint = "retrain the probes with this version of vlaprobe (vlaprobe train)"
+    data, _ = read_versioned(path, FORMAT, "probe file", READS, hint)
+    return from_json(ProbesMeta, data, path, hint)

@@ -24,11 +24,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import SupportsFloat
 
-import dacite
 import numpy as np
 
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import Json, JsonObject, write_atomic
+from vlaprobe.files import Json, JsonObject, from_json, read_versioned, write_atomic
 
 FORMAT = "vlaprobe-evaluation"
 FORMAT_VERSION = 4
@@ -362,26 +361,17 @@ def write_evaluation(folder: Path, evaluation: Evaluation) -> Path:
 def read_evaluation(folder: str | Path) -> Evaluation:
     """Read ``<folder>/evaluation.json``; a one-line error if it is missing, damaged or of another version."""
     path = Path(folder) / EVALUATION_FILE
-    hint = "pass the folder written by vlaprobe train (--probes)"
     if Path(folder).is_file():
-        raise VlaprobeError(f"{folder} is a file, not a probe folder; {hint}")
-    if not path.is_file():
-        raise VlaprobeError(f"no {EVALUATION_FILE} in {folder}; {hint}")
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise VlaprobeError(f"cannot read {path}: {exc}; run vlaprobe train again") from None
-    if not isinstance(data, dict) or data.get("format") != FORMAT:
-        raise VlaprobeError(f"{path} is not a vlaprobe evaluation; {hint}")
-    if data.get("format_version") not in READABLE_VERSIONS:
         raise VlaprobeError(
-            f"{path} is a vlaprobe evaluation of format version {data.get('format_version')}, this vlaprobe "
-            f"reads versions {', '.join(map(str, READABLE_VERSIONS))}; run vlaprobe train again"
+            f"{folder} is a file, not a probe folder; pass the folder written by vlaprobe train"
         )
-    try:
-        evaluation = dacite.from_dict(Evaluation, data, config=dacite.Config(check_types=False))
-    except (dacite.DaciteError, TypeError, ValueError) as exc:
-        raise VlaprobeError(f"{path} is damaged ({exc}); run vlaprobe train again") from None
+    if not path.is_file():
+        raise VlaprobeError(
+            f"no {EVALUATION_FILE} in {folder}; pass the folder written by vlaprobe train (--probes)"
+        )
+    hint = "run vlaprobe train again"
+    data, _ = read_versioned(path, FORMAT, "evaluation", READABLE_VERSIONS, hint)
+    evaluation = from_json(Evaluation, data, path, hint)
     for head in evaluation.heads.values():
         for best in (head.best, head.observer_best):
             if best is not None and not best.tied:  # version 3: the best layer is the whole set

@@ -24,7 +24,7 @@ import torch
 
 from vlaprobe.configs.stores import CompareStoresConfig
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import JsonObject, write_atomic
+from vlaprobe.files import JsonObject, from_json, read_versioned, write_atomic
 from vlaprobe.probes.baselines import BASELINES, predict_baselines
 from vlaprobe.probes.bootstrap import bootstrap_weights, interval
 from vlaprobe.probes.metrics import atom_metrics, layer_means
@@ -102,28 +102,12 @@ def write_store_comparison(folder: str | Path, comparison: StoreComparison) -> P
 
 def read_store_comparison(folder: str | Path) -> StoreComparison:
     """Read ``<folder>/store_comparison.json``; a one-line error if it is missing, damaged or of an unknown
-    version."""
-    import dacite
-
+    version (a file without a version, written before versions, reads as version 1)."""
     path = Path(folder) / FILE
     hint = "run vlaprobe compare-stores --probes again"
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
-        raise VlaprobeError(f"cannot read {path}; {hint}") from None
-    if not isinstance(data, dict) or data.get("format", FORMAT) != FORMAT:
-        raise VlaprobeError(f"{path} is not a vlaprobe store comparison; {hint}")
-    version = data.pop("format_version", 1)
-    data.pop("format", None)
-    if version != FORMAT_VERSION:
-        raise VlaprobeError(
-            f"{path} is a store comparison of format version {version}, this vlaprobe reads version "
-            f"{FORMAT_VERSION}; {hint}"
-        )
-    try:
-        return dacite.from_dict(StoreComparison, data, config=dacite.Config(check_types=False))
-    except (dacite.DaciteError, TypeError, ValueError) as exc:
-        raise VlaprobeError(f"{path} is damaged ({exc}); {hint}") from None
+    data, _ = read_versioned(path, FORMAT, "store comparison", (FORMAT_VERSION,), hint, unversioned=1)
+    data = {k: v for k, v in data.items() if k not in ("format", "format_version")}
+    return from_json(StoreComparison, data, path, hint)
 
 
 def _none(x: float) -> float | None:
