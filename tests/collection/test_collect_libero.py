@@ -66,6 +66,7 @@ def test_expert_episode_labels_match_detectors_on_stored_states(tmp_path: Path) 
     assert grasped.any() and not grasped[0]  # the bowl gets picked up during the episode
 
 
+@pytest.mark.serial  # its 10 s waits for a killed collection: timed, so not beside another worker
 def test_kill_9_and_resume_and_two_workers_give_the_same_episodes(tmp_path: Path) -> None:
     args = ["--tasks", "0", "--episodes-per-task", "1", "--max-tries-per-task", "3", "--keep-failed",
             "--device", "cpu", "--no-progress", "--env.max-steps", "6", "--env.image-size", "64"]  # fmt: skip
