@@ -118,5 +118,5 @@ def test_a_newer_evaluation_is_refused_with_one_line(trained: Path, tmp_path: Pa
     data = json.loads((trained / EVALUATION_FILE).read_text())
     data["format_version"] = 5
     (tmp_path / EVALUATION_FILE).write_text(json.dumps(data))
-    with pytest.raises(VlaprobeError, match="format version 5, this vlaprobe reads version\(s\) 3, 4"):
+    with pytest.raises(VlaprobeError, match=r"format version 5, this vlaprobe reads version\(s\) 3, 4"):
         read_evaluation(tmp_path)
