@@ -97,9 +97,9 @@ def check(store: str) -> dict[str, dict]:
         data.hidden, y, train, cfg.probe, seed=cfg.seed + 1, groups=column_groups(data, column_head, 0)
     )
     search_seconds = time.perf_counter() - started
-    assert probes.cv is not None and probes.cv.score is not None
-    cv = probes.cv
-    grid = list(cv.grid)
+    cv = probes.cv  # None where no fold can be held out: every layer then takes --probe.c-without-cv
+    assert probes.c is not None
+    grid = sorted(float(c) for c in cfg.probe.c_grid)
     scores = test_scores(data.hidden, y, train, test, grid, cfg)  # (grid, layers, atoms)
     old = [grid.index(c) for c in OLD_GRID]
     out: dict[str, dict] = {}
@@ -107,22 +107,22 @@ def check(store: str) -> dict[str, dict]:
         cols = column_head == i
         with np.errstate(invalid="ignore"):
             per_layer = np.nanmean(scores[:, :, cols], 2)  # (grid, layers)
-        loss, chosen = cv.of_group(i)
-        old_chosen = np.asarray(OLD_GRID)[np.argmin(loss[:, old], 1)]
-        loss_chosen = np.asarray(grid)[np.argmin(loss, 1)]
-        rules = {
-            "chosen": _pick(per_layer, chosen, grid),
-            "oracle": np.nanmax(per_layer, 0),
-            "old_grid_log_loss": _pick(per_layer, old_chosen, grid),
-            "wide_grid_log_loss": _pick(per_layer, loss_chosen, grid),
-        }
+        chosen = probes.c[:, np.flatnonzero(cols)[0]]
+        rules = {"chosen": _pick(per_layer, chosen, grid), "oracle": np.nanmax(per_layer, 0)}
+        old_chosen = np.full(len(chosen), np.nan)
+        if cv is not None:  # the log-loss rules, from the same folds' losses
+            loss = cv.of_group(i)[0]
+            old_chosen = np.asarray(OLD_GRID)[np.argmin(loss[:, old], 1)]
+            rules["old_grid_log_loss"] = _pick(per_layer, old_chosen, grid)
+            rules["wide_grid_log_loss"] = _pick(per_layer, np.asarray(grid)[np.argmin(loss, 1)], grid)
         figures = {name: _row(v) for name, v in rules.items()}
         out[head] = {
             "atoms": int(cols.sum()),
             **figures,
             "gap_best": round(figures["oracle"]["best"] - figures["chosen"]["best"], 4),
             "gap_mean": round(figures["oracle"]["mean"] - figures["chosen"]["mean"], 4),
-            "chosen_at_edge": int(cv.edge_of(i).sum()),
+            "searched": cv is not None,
+            "chosen_at_edge": 0 if cv is None else int(cv.edge_of(i).sum()),
             "old_at_edge": int(np.isin(old_chosen, (OLD_GRID[0], OLD_GRID[-1])).sum()),
             "layers": len(chosen),
             "chosen_c": {f"{c:g}": int((chosen == c).sum()) for c in grid if (chosen == c).any()},
@@ -144,12 +144,15 @@ def table(results: dict[str, dict]) -> str:
     ]
     for store, r in results.items():
         for head, h in r["heads"].items():
-            cells = [f"{h[k]['best']:.3f} / {h[k]['mean']:.3f}" for k in ("chosen", "oracle")]
+            cells = [
+                f"{h[k]['best']:.3f} / {h[k]['mean']:.3f}" if k in h else "no folds"
+                for k in ("chosen", "oracle", "old_grid_log_loss", "wide_grid_log_loss")
+            ]
+            if not h["searched"]:
+                cells[0] += f" (C = {next(iter(h['chosen_c']))}, not searched)"
             lines.append(
                 f"| `{store}` ({r['episodes']}) | {head} | {cells[0]} | {cells[1]} | "
-                f"{h['gap_best']:.3f} / {h['gap_mean']:.3f} | "
-                f"{h['old_grid_log_loss']['best']:.3f} / {h['old_grid_log_loss']['mean']:.3f} | "
-                f"{h['wide_grid_log_loss']['best']:.3f} / {h['wide_grid_log_loss']['mean']:.3f} | "
+                f"{h['gap_best']:.3f} / {h['gap_mean']:.3f} | {cells[2]} | {cells[3]} | "
                 f"{h['chosen_at_edge']} / {h['old_at_edge']} of {h['layers']} |"
             )
     return "\n".join(lines)

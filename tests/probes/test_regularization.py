@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -153,3 +154,29 @@ def test_an_evaluation_without_the_new_fields_still_reads(tmp_path: Path) -> Non
     read = read_evaluation(out).heads["object"].fit
     assert read is not None and read.c_at_edge is None and read.edge_warning("object") is None
     assert math.isclose(float(read.c[0]), 0.1)
+
+
+def test_one_training_episode_per_task_skips_the_search_with_a_warning() -> None:
+    x, y, rows, groups = _problem()
+    one_each = dataclasses.replace(groups, episode_tasks=np.arange(12))  # 12 tasks, one episode each
+    cfg = ProbeConfig(device="cpu", c_grid=GRID, cv_folds=3, c_without_cv=0.3)
+    cv, per_column = choose_c(x, y, rows, one_each, cfg, seed=0)
+    assert cv is None and (per_column == 0.3).all()
+    # the same data with the tasks shared by 4 episodes each is searched
+    assert choose_c(x, y, rows, groups, cfg, seed=0)[0] is not None
+
+
+def test_train_warns_and_records_when_one_episode_per_task_leaves_nothing_to_hold_out(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    data = synthetic_data(
+        num_tasks=3, episodes_per_task=2, steps_per_episode=20, num_layers=2, hidden_size=16
+    )
+    cfg = TrainConfig(shuffled_control=False, bootstrap=5, auprc_bootstrap=0, probe=ProbeConfig(c_grid=GRID))
+    with caplog.at_level("WARNING", logger="vlaprobe.probes"):
+        out = train_on_data(data, cfg, tmp_path)
+    fit = read_evaluation(out).heads["object"].fit
+    assert fit is not None and set(fit.c) == {1.0} and fit.c_at_edge is None and fit.cv_folds == 0
+    message = fit.edge_warning("object")
+    assert message is not None and "--probe.c-without-cv" in message and "2 episodes per task" in message
+    assert message in caplog.text

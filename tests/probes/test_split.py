@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vlaprobe.probes.split import check_no_leak, filter_labels, rows_of, split_episodes
+from vlaprobe.probes.split import check_no_leak, filter_labels, rows_of, search_folds, split_episodes
 
 
 def test_holdout_is_stratified_by_task_and_disjoint() -> None:
@@ -79,3 +79,36 @@ def test_filter_over_folds_drops_an_atom_any_fold_would_drop() -> None:
     result = filter_labels([a, b], ["x", "y"], 0.01, 0.99)
     assert result.kept.tolist() == [0]
     assert result.dropped[0]["atom"] == "y" and result.dropped[0]["train_frequency"] == 1.0
+
+
+def test_search_folds_hold_out_only_episodes_whose_task_stays_in_training() -> None:
+    tasks = np.array([0, 0, 1, 1, 1, 2, 3])  # tasks 2 and 3 have one training episode each
+    folds = search_folds(tasks, 3, seed=0, across_tasks=False)
+    assert len(folds) == 3
+    held = np.concatenate([f.test for f in folds])
+    assert sorted(held.tolist()) == [0, 1, 2, 3, 4]  # every episode of a task with >= 2, once
+    for f in folds:
+        assert {5, 6} <= set(f.train.tolist())  # the single episodes train in every fold
+        assert set(tasks[f.test]) <= set(tasks[f.train])  # a held-out episode's task is trained on
+        assert not set(f.test) & set(f.train)
+    # where every task has >= 2 episodes the folds are split_episodes' own
+    even = np.repeat(np.arange(4), 2)
+    same = split_episodes(even, 0.5, 3, 7)
+    for a, b in zip(search_folds(even, 3, 7, False), same, strict=True):
+        assert a.test.tolist() == b.test.tolist() and a.train.tolist() == b.train.tolist()
+
+
+def test_search_folds_are_empty_when_nothing_can_be_held_out() -> None:
+    assert search_folds(np.arange(10), 3, seed=0, across_tasks=False) == []  # one episode per task
+    pair = search_folds(np.array([0, 1, 2, 2]), 3, 0, False)  # one task with 2 episodes: 2 folds of it
+    assert [f.test.tolist() for f in pair] in ([[2], [3]], [[3], [2]])
+    assert search_folds(np.zeros(6, int), 3, 0, across_tasks=True) == []  # one task
+
+
+def test_search_folds_across_tasks_hold_out_whole_tasks() -> None:
+    tasks = np.repeat(np.arange(5), 2)
+    folds = search_folds(tasks, 3, seed=1, across_tasks=True)
+    assert len(folds) == 3
+    assert sorted(np.concatenate([f.test for f in folds]).tolist()) == list(range(10))
+    for f in folds:
+        assert not set(tasks[f.test]) & set(tasks[f.train])

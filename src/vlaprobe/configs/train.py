@@ -50,7 +50,12 @@ class ProbeConfig:
     """C's whose cross-validated balanced accuracy is within this of the best one tie; the strongest penalty
     (smallest C) of them is chosen."""
     cv_folds: int = 3
-    """Folds of that cross-validation, by whole training episodes, stratified by task."""
+    """Folds of that cross-validation, by whole training episodes, stratified by task (only tasks with at
+    least 2 training episodes are held out, so the folds ask what the test split asks; whole tasks with
+    --split leave-one-task-out)."""
+    c_without_cv: float = 1.0
+    """C where the training split leaves nothing to hold out (one training episode per task, or one task
+    under leave-one-task-out): scikit-learn's default, with a warning."""
     tol: float = 1e-4
     """A probe is converged when the largest absolute entry of its objective's gradient is at most this."""
     max_iter: int = 500

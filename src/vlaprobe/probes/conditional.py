@@ -99,6 +99,7 @@ def conditional_fit(
         episode_tasks=np.asarray(episode_tasks),
         group=np.asarray(column_head),
         scored=np.ones(len(column_head), bool),
+        across_tasks=cfg.split.by == "leave-one-task-out",
     )
     probe_cfg = dataclasses.replace(cfg.probe, standardize=False)  # standardised here, one-hot kept 0/1
     k, out = targets.shape[1], {}

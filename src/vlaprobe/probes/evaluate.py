@@ -92,7 +92,7 @@ def cross_fit(
     baselines = {name: np.empty((len(eval_rows), k), bool) for name in BASELINES}
     train_frequency = np.zeros(k)
     probes: LinearProbes | None = None
-    groups = column_groups(data, column_head, permutations)
+    groups = column_groups(data, column_head, permutations, cfg.split.by == "leave-one-task-out")
     for i, (train_rows, test_rows) in enumerate(fold_rows):
         blocks = [targets]
         for _ in range(permutations):
@@ -128,14 +128,18 @@ def cross_fit(
     )
 
 
-def column_groups(data: ProbeData, column_head: np.ndarray, permutations: int) -> ColumnGroups:
-    """Columns of the real atoms and of each shuffled copy, grouped by head; the real ones are scored."""
+def column_groups(
+    data: ProbeData, column_head: np.ndarray, permutations: int, across_tasks: bool = False
+) -> ColumnGroups:
+    """Columns of the real atoms and of each shuffled copy, grouped by head; the real ones are scored.
+    ``across_tasks``: the split tests unseen tasks (the C search's folds then hold out whole tasks)."""
     k = len(column_head)
     return ColumnGroups(
         episode=data.episode,
         episode_tasks=data.episode_tasks,
         group=np.tile(np.asarray(column_head), 1 + permutations),
         scored=np.arange(k * (1 + permutations)) < k,
+        across_tasks=across_tasks,
     )
 
 
@@ -147,6 +151,11 @@ def probe_fit(fitted: CrossFit, cols: np.ndarray, cfg: TrainConfig) -> ProbeFit:
     conv = conv.columns(cols)
     cv_loss = cv_score = c_at_edge = None
     rule = "one C given, not cross-validated"
+    if probes.cv is None and len(cfg.probe.c_grid) > 1:
+        rule = (
+            f"C = {cfg.probe.c_without_cv:g} (--probe.c-without-cv), not cross-validated: the training split "
+            "leaves no fold to hold out (one training episode per task, or one task across tasks)"
+        )
     if probes.cv is not None and len(cols):
         group = int(fitted.column_head[cols[0]])
         cv_loss = nested(probes.cv.of_group(group)[0])
@@ -156,6 +165,7 @@ def probe_fit(fitted: CrossFit, cols: np.ndarray, cfg: TrainConfig) -> ProbeFit:
         rule = (
             f"the smallest C whose mean held-out balanced accuracy over the head's atoms and {probes.cv.folds} "
             f"episode-grouped folds of the training split is within {probes.cv.tolerance:g} of the best C's"
+            + (" (folds of whole tasks)" if cfg.split.by == "leave-one-task-out" else "")
         )
     return ProbeFit(
         tol=conv.tol,

@@ -9,8 +9,12 @@ the predictions stop changing (all majority at strong penalties, a plateau at we
 folds cannot tell apart the smaller one is the simpler probe. A choice at either end of the grid means the
 optimum may lie outside it: :meth:`CrossValidation.edge_of` flags it and ``vlaprobe train`` warns.
 
-The folds divide the *training* episodes (stratified by task, as the train/test split), so the test episodes
-never influence C. Per C, every (fold, atom) is one column of a single batched fit
+The folds divide the *training* episodes and are shaped like the split that scores the probes
+(:func:`~vlaprobe.probes.split.search_folds`): with the default within-task split only episodes of tasks with
+at least 2 training episodes are held out, so every held-out episode's task is trained on, as in the test
+split; with ``--split leave-one-task-out`` whole tasks are held out. The test episodes never influence C.
+Where nothing can be held out (one training episode per task) C is ``ProbeConfig.c_without_cv`` and
+``vlaprobe train`` warns. Per C, every (fold, atom) is one column of a single batched fit
 (:func:`~vlaprobe.probes.lbfgs.fit_logistic`), its fold's held-out rows weighted 0; the grid runs from the
 strongest penalty to the weakest, each fit starting from the previous one's solution (a warm start: the
 same minimiser, fewer iterations). The features are those of the final fit (standardised with the whole
@@ -29,7 +33,7 @@ import torch.nn.functional as F
 from vlaprobe.configs.train import ProbeConfig
 from vlaprobe.probes.lbfgs import fit_logistic, l2_of_c
 from vlaprobe.probes.metrics import confusion_by_group, metrics_from_counts
-from vlaprobe.probes.split import split_episodes
+from vlaprobe.probes.split import search_folds
 
 
 @dataclass(frozen=True)
@@ -45,6 +49,9 @@ class ColumnGroups:
     scored: np.ndarray
     """bool (columns,): columns whose held-out score chooses their group's C (the real atoms, not the
     shuffled-label copies, which take the C of their group)."""
+    across_tasks: bool = False
+    """The probes are tested on tasks they were not trained on (``--split leave-one-task-out``): the search's
+    folds hold out whole tasks too."""
 
 
 @dataclass
@@ -150,17 +157,16 @@ def choose_c(
 ) -> tuple[CrossValidation | None, np.ndarray]:
     """C per (layer, column) for training rows ``rows`` (features ``x`` (layers, rows, hidden), targets ``y``).
 
-    Returns the cross-validation record (None when fewer than 2 training episodes: then the grid's largest C)
-    and (layers, columns) C values.
+    Returns the cross-validation record (None when no fold can be held out: then ``cfg.c_without_cv``) and
+    (layers, columns) C values.
     """
     grid = sorted(float(c) for c in cfg.c_grid)
     num_layers = x.shape[0]
     ids = np.unique(groups.group)
     episodes = np.unique(groups.episode[rows])
-    if len(episodes) < 2:
-        return None, np.full((num_layers, y.shape[1]), grid[-1])
-    k = min(cfg.cv_folds, len(episodes))
-    folds = split_episodes(groups.episode_tasks[episodes], 0.5, k, seed)
+    folds = search_folds(groups.episode_tasks[episodes], cfg.cv_folds, seed, groups.across_tasks)
+    if not folds:
+        return None, np.full((num_layers, y.shape[1]), cfg.c_without_cv)
     row_episode = np.searchsorted(episodes, groups.episode[rows])
     scored = np.flatnonzero(groups.scored)
     ys = y[:, scored]

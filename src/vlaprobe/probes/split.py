@@ -59,6 +59,35 @@ def split_episodes(episode_tasks: np.ndarray, test_fraction: float, folds: int, 
     ]
 
 
+def search_folds(episode_tasks: np.ndarray, folds: int, seed: int, across_tasks: bool) -> list[Fold]:
+    """Folds of the training episodes for choosing a hyper-parameter, shaped like the split that scores it.
+
+    Within tasks (the default ``--split episode``, whose test episodes come from the training tasks): only
+    episodes of tasks with at least 2 training episodes are held out, dealt as :func:`split_episodes` does, so
+    every held-out episode's task is also in its fold's training; the episodes of a task with one training
+    episode train in every fold (holding one out would test an unseen task, a harder question than the test
+    split asks). ``across_tasks`` (``--split leave-one-task-out``): whole tasks are held out, dealt to the
+    folds in turn. At most ``folds`` folds; none when fewer than 2 units (episodes or tasks) can be held out.
+    """
+    tasks = np.asarray(episode_tasks)
+    rng = np.random.default_rng(seed)
+    everyone = np.arange(len(tasks))
+    if across_tasks:
+        unique = rng.permutation(np.unique(tasks))
+        k = min(folds, len(unique))
+        if k < 2:
+            return []
+        held = [np.flatnonzero(np.isin(tasks, unique[i::k])) for i in range(k)]
+        return [Fold(train=np.setdiff1d(everyone, h), test=h) for h in held]
+    _, inverse, counts = np.unique(tasks, return_inverse=True, return_counts=True)
+    eligible = np.flatnonzero(counts[inverse] >= 2)
+    k = min(folds, len(eligible))
+    if k < 2:
+        return []
+    inner = split_episodes(tasks[eligible], 0.5, k, seed)
+    return [Fold(train=np.setdiff1d(everyone, eligible[f.test]), test=eligible[f.test]) for f in inner]
+
+
 def leave_one_task_out(episode_tasks: np.ndarray) -> list[Fold]:
     """One fold per task: train on every other task's episodes, test on this task's (cross-task probes)."""
     tasks = np.asarray(episode_tasks)

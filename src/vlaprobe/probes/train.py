@@ -208,7 +208,7 @@ def _fit(
     fitted = cross_fit(data, targets, fold_rows, cfg, seeds, permutations, column_head)
     probes = fitted.probes
     if len(fold_rows) > 1:  # cross-validated figures; the saved probes learn from every episode
-        groups = column_groups(data, column_head, 0)
+        groups = column_groups(data, column_head, 0, cfg.split.by == "leave-one-task-out")
         probes = fit_probes(
             data.hidden, targets, np.arange(data.num_steps), cfg.probe, seeds["probe"], groups
         )
