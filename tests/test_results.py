@@ -8,14 +8,10 @@ import re
 from pathlib import Path
 
 import pytest
-from tests.collection.fakes import make_fake_worker
+from tests.collection.fakes import fake_probed_run
 
 from vlaprobe.cognition.monitor import monitor
-from vlaprobe.collection.collect import collect
-from vlaprobe.configs.collect import CollectConfig
-from vlaprobe.configs.env import EnvConfig
 from vlaprobe.configs.monitor import MonitorConfig
-from vlaprobe.configs.train import TrainConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.probes.results import read_evaluation
 from vlaprobe.results import (
@@ -37,20 +33,9 @@ README = Path(__file__).resolve().parent.parent / "README.md"
 @pytest.fixture(scope="module")
 def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A run folder as ``vlaprobe run`` lays it out: fake episodes, probes trained on them, the cognition."""
-    from vlaprobe.probes.train import train_probes
-
     root = tmp_path_factory.mktemp("run")
-    cfg = CollectConfig(
-        out=root / "activations",
-        tasks=(0, 1, 2),
-        episodes_per_task=4,
-        max_tries_per_task=12,
-        progress=False,
-        env=EnvConfig(max_steps=6, image_size=16),
-    )
-    collect(cfg, make_fake_worker)
-    train_probes(TrainConfig(store=cfg.out, out=root / "probes", bootstrap=20, auprc_bootstrap=5))
-    monitor(MonitorConfig(store=cfg.out, probes=root / "probes"))
+    fake_probed_run(root)
+    monitor(MonitorConfig(store=root / "activations", probes=root / "probes"))
     return root
 
 

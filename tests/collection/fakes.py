@@ -191,3 +191,32 @@ def serial_keys(tasks: list[int], per_task: int, budget: int, keep_failed: bool)
             if ok or keep_failed:
                 keys.append(f"t{t:02d}_i{i:02d}_a00")
     return keys
+
+
+def fake_probed_run(root: Any, *, shuffled_control: bool = True) -> None:
+    """``root/activations`` (12 fake episodes of tasks 0-2, the real writer) and ``root/probes`` trained on
+    them with small bootstraps: the run folder the live and results tests start from."""
+    from vlaprobe.collection.collect import collect
+    from vlaprobe.configs.collect import CollectConfig
+    from vlaprobe.configs.env import EnvConfig
+    from vlaprobe.configs.train import TrainConfig
+    from vlaprobe.probes.train import train_probes
+
+    cfg = CollectConfig(
+        out=root / "activations",
+        tasks=(0, 1, 2),
+        episodes_per_task=4,
+        max_tries_per_task=12,
+        progress=False,
+        env=EnvConfig(max_steps=6, image_size=16),
+    )
+    collect(cfg, make_fake_worker)
+    train_probes(
+        TrainConfig(
+            store=cfg.out,
+            out=root / "probes",
+            bootstrap=20,
+            auprc_bootstrap=5,
+            shuffled_control=shuffled_control,
+        )
+    )
