@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from vlaprobe.configs.env import EnvConfig
+from vlaprobe.configs.env import EnvConfig, SuiteName
 from vlaprobe.envs.base import Observation
 from vlaprobe.envs.libero_world import CAMERA, SceneIndex, read_goal, read_scene
 from vlaprobe.envs.placements import (
@@ -40,7 +40,7 @@ NOOP_ACTION = np.array([0, 0, 0, 0, 0, 0, -1], dtype=np.float64)  # gripper open
 
 
 @lru_cache(maxsize=4)
-def _benchmark(suite: str) -> Any:
+def _benchmark(suite: SuiteName) -> Any:
     prepare_libero(need_assets=False)  # task lists come from LIBERO's own files, not from the assets
     import contextlib
     import io
@@ -54,18 +54,18 @@ def _benchmark(suite: str) -> Any:
         return suites[suite]()
 
 
-def suite_tasks(suite: str = "libero_spatial") -> list[tuple[int, str]]:
+def suite_tasks(suite: SuiteName = "libero_spatial") -> list[tuple[int, str]]:
     """(index, instruction) of every task of a suite; no simulator is built."""
     bench = _benchmark(suite)
     return [(i, bench.get_task(i).language) for i in range(bench.get_num_tasks())]
 
 
-def num_init_states(suite: str, task: int) -> int:
+def num_init_states(suite: SuiteName, task: int) -> int:
     """How many fixed init states a task has (read from LIBERO's init-state file: no simulator)."""
     return len(_benchmark(suite).get_task_init_states(task))
 
 
-def resolve_task(task: int | str, suite: str = "libero_spatial") -> int:
+def resolve_task(task: int | str, suite: SuiteName = "libero_spatial") -> int:
     """A task index from an index or an exact instruction (case-insensitive)."""
     tasks = suite_tasks(suite)
     if isinstance(task, str) and task.strip().lstrip("-").isdigit():
@@ -82,7 +82,7 @@ def resolve_task(task: int | str, suite: str = "libero_spatial") -> int:
     raise VlaprobeError(f"no {suite} task has the instruction {task!r}; list them with `vlaprobe tasks`")
 
 
-def task_problem(task: int, suite: str = "libero_spatial") -> dict[str, Any]:
+def task_problem(task: int, suite: SuiteName = "libero_spatial") -> dict[str, Any]:
     """LIBERO's parsed BDDL problem of one task (regions, objects, ``initial_state``); no simulator is built."""
     spec = _benchmark(suite).get_task(task)
     _quiet_import_robosuite()  # LIBERO's BDDL parser imports robosuite, which prints start-up advice
