@@ -16,7 +16,8 @@ import numpy as np
 
 from vlaprobe.configs.env import EnvConfig, SuiteName
 from vlaprobe.envs.base import Observation
-from vlaprobe.envs.libero_world import CAMERA, SceneIndex, read_goal, read_scene
+from vlaprobe.envs.bddl_scene import pick_place_goal, scene_from_problem, task_bddl
+from vlaprobe.envs.libero_world import CAMERA, SceneIndex
 from vlaprobe.envs.placements import (
     MAX_DRAWS,
     SAMPLED_INITS,
@@ -99,7 +100,8 @@ class LiberoTaskEnv:
 
     def __init__(self, task: int | str, cfg: EnvConfig | None = None) -> None:
         self.cfg = cfg or EnvConfig()
-        prepare_libero(self.cfg.assets)
+        assets = prepare_libero(self.cfg.assets)
+        assert assets is not None  # prepare_libero finds or refuses the assets folder
         from libero.libero import get_libero_path
         from libero.libero.envs import OffScreenRenderEnv
 
@@ -125,8 +127,11 @@ class LiberoTaskEnv:
             hard_reset=False,  # hard resets rebuild the simulation (1-3 s) and invalidate handles
         )
         self._sim_env = self._env.env
-        self.scene = read_scene(self._sim_env)
-        self.goal = read_goal(self._sim_env)
+        problem = task_bddl(self.cfg.suite, self.task_index)
+        self.scene = scene_from_problem(problem, assets)
+        self.goal_conjunction = problem.goal
+        """The task's BDDL goal, every conjunct (On, In, Open, Close, TurnOn, TurnOff)."""
+        self.goal = pick_place_goal(problem.goal, self.scene)
         self.labeler = Labeler(self.scene, self.goal)
         self._index = SceneIndex(self._sim_env, self.scene)
         self._reference = None

@@ -26,10 +26,11 @@ of its collision-geom bounding box.
 - ``on-table(a)``: ``a`` touches the table top and is not held (``grasped``). A fixture (cabinet, stove) is
   welded to the world, so MuJoCo computes no contacts for it: it is on the table when the bottom of its box is
   within ``FIXTURE_TABLE_GAP`` = 2 cm of the table top.
-- ``inside(a,c)``: LIBERO's own ``In``: ``a``'s body origin lies in the drawer site's box (half extents rotated
-  into the world, 1 cm of slack below).
-- ``open(c)``, ``turned-on(k)``: LIBERO's thresholds on the joint: a wooden-cabinet drawer is open below
-  -0.14 (``default_open_ranges``), the flat stove is on at 0.5 or more (``default_turnon_ranges``).
+- ``inside(a,c)``: LIBERO's own ``In``: ``a``'s body origin lies in the drawer's (or receptacle's: basket,
+  microwave, caddy compartment) site box (half extents rotated into the world, 1 cm of slack below).
+- ``open(c)``, ``turned-on(k)``: LIBERO's thresholds on the joint (a door's, the microwave's, on its hinge): a
+  wooden-cabinet drawer is open below -0.14 (``default_open_ranges``), the flat stove is on at 0.5 or more
+  (``default_turnon_ranges``), the microwave open below -1.3.
 - ``grasped(a)``: the physical grasp, not the gripper command. A finger *touches* ``a`` when MuJoCo reports a
   contact between one of its collision geoms (pad included) and ``a``'s. A grasp **starts** when both fingers
   touch ``a``. It **lasts** while at least one finger still touches it: robosuite's two-pad check flickers
@@ -149,13 +150,16 @@ def on_matrix(scene: Scene, state: WorldState) -> np.ndarray:
 
 
 def inside_matrix(scene: Scene, state: WorldState) -> np.ndarray:
-    """(P, C) matrix: inside(a, c), LIBERO's ``In`` for drawer sites."""
+    """(P, H) matrix: inside(a, h), LIBERO's ``In`` (the origin in the site's box) for each of ``scene.holders``
+    (drawer sites, then receptacle sites)."""
     n_pick, n_cont = len(scene.pickupable), len(scene.containers)
-    if n_cont == 0:
+    start = n_cont + len(scene.surfaces)
+    rows = np.r_[0:n_cont, start : start + len(scene.receptacles)].astype(int)
+    if len(rows) == 0:
         return np.zeros((n_pick, 0), dtype=bool)
-    half = np.abs(np.einsum("cij,cj->ci", state.region_mat[:n_cont], state.region_size[:n_cont]))
-    lo = state.region_pos[:n_cont] - half
-    hi = state.region_pos[:n_cont] + half
+    half = np.abs(np.einsum("cij,cj->ci", state.region_mat[rows], state.region_size[rows]))
+    lo = state.region_pos[rows] - half
+    hi = state.region_pos[rows] + half
     lo[:, 2] -= INSIDE_SLACK_BELOW
     p = state.pos[:n_pick, None, :]
     return np.all((p > lo[None]) & (p < hi[None]), axis=-1)
@@ -220,6 +224,10 @@ class Labeler:
         n_pick = len(scene.pickupable)
         self._on_mask = np.ones((n_pick, n), dtype=bool)
         self._on_mask[np.arange(n_pick), np.arange(n_pick)] = False
+        holders = scene.holders
+        self._inside_mask = np.array(
+            [[scene.region_parent.get(c) != a for c in holders] for a in scene.pickupable], dtype=bool
+        ).reshape(n_pick, len(holders))
         self.reset()
 
     def reset(self) -> None:
@@ -245,9 +253,14 @@ class Labeler:
         n_pick = len(scene.pickupable)
         on_table[n_pick:] |= np.abs(state.aabb_lo[n_pick:, 2] - state.table_height) < FIXTURE_TABLE_GAP
         on_table &= ~held
-        inside = inside_matrix(scene, state)
+        inside = inside_matrix(scene, state)[self._inside_mask]
         is_open = np.array(
-            [a.is_active(q) for a, q in zip(scene.container_articulation, state.container_qpos, strict=True)],
+            [
+                a.is_active(q)
+                for a, q in zip(
+                    scene.container_articulation + scene.door_articulation, state.container_qpos, strict=True
+                )
+            ],
             dtype=bool,
         )
         turned_on = np.array(
@@ -262,7 +275,7 @@ class Labeler:
                 rel["right-of"][self._offdiag],
                 on[self._on_mask],
                 on_table,
-                inside.reshape(-1),
+                inside,
                 is_open,
                 turned_on,
             ]
