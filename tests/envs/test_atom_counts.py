@@ -69,7 +69,9 @@ def test_the_atom_count_table_in_the_docs_is_the_generated_one() -> None:
     if os.environ.get("VLAPROBE_WRITE_DOCS") == "1" and expected != doc:
         DOC.write_text(expected)
         doc = expected
-    assert expected == doc, "docs/symbols.md's atom counts are stale: run VLAPROBE_WRITE_DOCS=1 pytest " + __file__
+    assert expected == doc, (
+        "docs/symbols.md's atom counts are stale: run VLAPROBE_WRITE_DOCS=1 pytest " + __file__
+    )
 
 
 def test_spatial_row_is_the_papers() -> None:
