@@ -138,12 +138,12 @@ def scene_from_problem(problem: BddlProblem, assets: Path) -> Scene:
     )
 
 
-def assets_folder(assets: str | Path | None = None) -> Path:
-    """The assets folder whose XMLs say which regions sit on joints: ``assets``, $VLAPROBE_LIBERO_ASSETS, else the
-    libero package's own."""
+def assets_folder(assets: str | Path | None = None, suite: SuiteName = "libero_spatial") -> Path:
+    """The assets folder whose XMLs say which regions sit on joints, checked for ``suite``'s files: ``assets``,
+    $VLAPROBE_LIBERO_ASSETS, else the libero package's own."""
     from vlaprobe.envs.setup import resolve_assets
 
-    folder = resolve_assets(assets)
+    folder = resolve_assets(assets, suite)
     if folder is not None:
         return folder
     own = libero_root() / "assets"
@@ -165,7 +165,7 @@ def task_bddl(suite: SuiteName, task: int) -> BddlProblem:
 
 def task_scene(suite: SuiteName, task: int, assets: str | Path | None = None) -> Scene:
     """A task's scene from its BDDL file."""
-    return scene_from_problem(task_bddl(suite, task), assets_folder(assets))
+    return scene_from_problem(task_bddl(suite, task), assets_folder(assets, suite))
 
 
 def task_goal(suite: SuiteName, task: int) -> GoalConjunction:

@@ -100,7 +100,7 @@ class LiberoTaskEnv:
 
     def __init__(self, task: int | str, cfg: EnvConfig | None = None) -> None:
         self.cfg = cfg or EnvConfig()
-        assets = prepare_libero(self.cfg.assets)
+        assets = prepare_libero(self.cfg.assets, suite=self.cfg.suite)  # the suite's files, before any work
         assert assets is not None  # prepare_libero finds or refuses the assets folder
         from libero.libero import get_libero_path
         from libero.libero.envs import OffScreenRenderEnv

@@ -164,3 +164,23 @@ def problem_facts() -> dict[str, ProblemFacts]:
         values = {k: m.group(1) for k, m in found.items() if m is not None}
         out[values["name"].lower()] = ProblemFacts(**values)
     return out
+
+
+@lru_cache(maxsize=1)
+def texture_styles() -> dict[str, dict[str, str]]:
+    """LIBERO's arena styles, ``{"floor": {style: file}, "wall": {style: file}}`` (``envs/arenas/style.py``)."""
+    tree = ast.parse((libero_root() / "envs" / "arenas" / "style.py").read_text())
+    values = {
+        node.targets[0].id: node.value
+        for node in tree.body
+        if isinstance(node, ast.Assign) and isinstance(node.targets[0], ast.Name)
+    }
+    try:
+        return {
+            "floor": ast.literal_eval(values["FLOOR_STYLE"]),
+            "wall": ast.literal_eval(values["WALL_STYLE"]),
+        }
+    except (KeyError, ValueError):
+        raise VlaprobeError(
+            "cannot read libero's arena styles; this LIBERO version is not supported"
+        ) from None

@@ -119,6 +119,6 @@ def suite_vocabulary(suite: SuiteName, assets: str | Path | None = None) -> Suit
     from vlaprobe.envs.bddl_scene import assets_folder, scene_from_problem, task_bddl
     from vlaprobe.envs.libero import suite_tasks
 
-    folder = assets_folder(assets)
+    folder = assets_folder(assets, suite)
     scenes = [scene_from_problem(task_bddl(suite, i), folder) for i, _ in suite_tasks(suite)]
     return vocabulary_of(suite, scenes)
