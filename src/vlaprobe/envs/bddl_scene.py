@@ -173,13 +173,16 @@ def task_goal(suite: SuiteName, task: int) -> GoalConjunction:
     return task_bddl(suite, task).goal
 
 
-def pick_place_goal(goal: GoalConjunction, scene: Scene) -> Goal:
+def pick_place_goal(goal: GoalConjunction, scene: Scene) -> Goal | None:
     """The pick-and-place :class:`~vlaprobe.symbols.Goal` the labeler's ``should-move-towards`` follows: a goal
-    of one ``On(a, b)`` between objects of the scene (every LIBERO-spatial task), else a one-line error."""
-    (first, *rest) = goal.conjuncts or (None,)
-    if first is None or rest or first.predicate != "On" or first.args[1] not in scene.tabletop:
-        raise VlaprobeError(
-            f"task goal {goal} is not a single On(a, b) between objects; the action atoms (should-move-towards) "
-            "know pick-and-place goals only so far"
-        )
+    of one ``On(a, b)`` between objects of the scene (every LIBERO-spatial task); None for any other goal."""
+    if len(goal.conjuncts) != 1:
+        return None
+    first = goal.conjuncts[0]
+    if (
+        first.predicate != "On"
+        or first.args[0] not in scene.pickupable
+        or first.args[1] not in scene.tabletop
+    ):
+        return None
     return Goal(pick=first.args[0], place=first.args[1])

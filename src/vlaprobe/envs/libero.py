@@ -35,7 +35,7 @@ from vlaprobe.envs.placements import (
 from vlaprobe.envs.referents import parse_reference, placement_problems, reference_problems
 from vlaprobe.envs.setup import _quiet_import_robosuite, prepare_libero
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.symbols import Labeler, WorldState
+from vlaprobe.symbols import Goal, Labeler, WorldState
 
 NOOP_ACTION = np.array([0, 0, 0, 0, 0, 0, -1], dtype=np.float64)  # gripper open
 
@@ -131,8 +131,10 @@ class LiberoTaskEnv:
         self.scene = scene_from_problem(problem, assets)
         self.goal_conjunction = problem.goal
         """The task's BDDL goal, every conjunct (On, In, Open, Close, TurnOn, TurnOff)."""
-        self.goal = pick_place_goal(problem.goal, self.scene)
-        self.labeler = Labeler(self.scene, self.goal)
+        pick_place = pick_place_goal(problem.goal, self.scene)
+        if pick_place is not None:  # absent otherwise: collection, the expert and the cognition need one
+            self.goal: Goal = pick_place
+        self.labeler = Labeler(self.scene, pick_place)
         self._index = SceneIndex(self._sim_env, self.scene)
         self._reference = None
         if self.cfg.inits == "sampled-swap":

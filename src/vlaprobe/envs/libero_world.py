@@ -17,6 +17,37 @@ from vlaprobe.symbols.world import FINGER_GAP_MAX
 CAMERA = "agentview"
 
 
+def workspace_geoms(e: Any) -> tuple[list[int], float]:
+    """The collision geoms of the workspace body (the floor, the study or living-room table: the body named by
+    LIBERO's ``workspace_name``) and the height of their top: the floor plane's height, else the highest top of
+    the geoms' world boxes. (0.0 when the scene has none.)"""
+    import mujoco
+
+    model = e.sim.model
+    raw = model._model
+    root = model.body_name2id(e.workspace_name) if e.workspace_name in model.body_names else -1
+    geoms = [
+        g
+        for g in range(model.ngeom)
+        if root >= 0
+        and model.body_rootid[model.geom_bodyid[g]] == root
+        and (model.geom_contype[g] or model.geom_conaffinity[g])
+    ]
+    if not geoms:
+        return [], 0.0
+    data = e.sim.data
+    tops = []
+    for g in geoms:
+        if raw.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE:
+            tops.append(float(data.geom_xpos[g][2]))
+            continue
+        aabb = raw.geom_aabb[g]
+        rot = np.asarray(data.geom_xmat[g]).reshape(3, 3)
+        centre = np.asarray(data.geom_xpos[g]) + rot @ aabb[:3]
+        tops.append(float(centre[2] + np.abs(rot)[2] @ aabb[3:]))
+    return geoms, max(tops)
+
+
 class SceneIndex:
     """Geom, site and joint addresses of one built scene, and the world-state snapshot read through them."""
 
@@ -31,10 +62,11 @@ class SceneIndex:
             for g in e.get_object(name).contact_geoms:
                 owner[model.geom_name2id(g)] = i
         table = [g for g in range(model.ngeom) if (model.geom_id2name(g) or "") == "table_collision"]
+        if table:  # the tabletop and kitchen scenes: the table's collision box
+            self.table_height = float(e.sim.data.geom_xpos[table[0]][2] + model.geom_size[table[0]][2])
+        else:
+            table, self.table_height = workspace_geoms(e)
         owner[table] = n
-        self.table_height = (
-            float(e.sim.data.geom_xpos[table[0]][2] + model.geom_size[table[0]][2]) if table else 0.0
-        )
         fingers = e.robots[0].gripper.important_geoms
         for offset, key in ((1, "left_finger"), (2, "right_finger")):
             for g in fingers[key]:

@@ -209,7 +209,9 @@ class Labeler:
     stored world states with a fresh (or reset) labeler gives the labels recorded with them.
     """
 
-    def __init__(self, scene: Scene, goal: Goal) -> None:
+    def __init__(self, scene: Scene, goal: Goal | None) -> None:
+        """``goal`` None: the task's goal is not one pick-and-place (LIBERO-goal's ``Open``, LIBERO-10's
+        conjunctions); ``should-move-towards`` is then undefined (:attr:`undefined_action_atoms`, all 0)."""
         self.scene = scene
         self.goal = goal
         self.vocabulary: Vocabulary = build_vocabulary(scene)
@@ -217,10 +219,13 @@ class Labeler:
         self._offdiag = ~np.eye(n, dtype=bool)
         pick_index = {a: i for i, a in enumerate(scene.pickupable)}
         table_index = {a: i for i, a in enumerate(scene.tabletop)}
-        if goal.pick not in pick_index or goal.place not in table_index:
+        if goal is not None and (goal.pick not in pick_index or goal.place not in table_index):
             raise ValueError(f"goal {goal} does not name objects of the scene")
-        self._pick = pick_index[goal.pick]
-        self._place = table_index[goal.place]
+        self._pick = pick_index[goal.pick] if goal is not None else -1
+        self._place = table_index[goal.place] if goal is not None else -1
+        towards = [a for a in self.vocabulary.action_atoms if a.startswith("should-move-towards(")]
+        self.undefined_action_atoms: tuple[str, ...] = tuple(towards) if goal is None else ()
+        """Action atoms without a definition for this goal (never to be scored as false)."""
         n_pick = len(scene.pickupable)
         self._on_mask = np.ones((n_pick, n), dtype=bool)
         self._on_mask[np.arange(n_pick), np.arange(n_pick)] = False
@@ -281,6 +286,8 @@ class Labeler:
             ]
         )
         towards = np.zeros(n, dtype=bool)
+        if self.goal is None:
+            return obj, np.concatenate([grasped, towards])
         placed = bool(on[self._pick, self._place])
         if grasped[self._pick]:
             self._placing, self._landed, self._on_steps = True, False, 0

@@ -1,0 +1,85 @@
+"""Every suite in the real simulator (one task each): the settled init state's atoms agree with the BDDL ``:init``
+and with LIBERO's own predicates, and ``vlaprobe atoms`` prints them (issue #35; the full sweep is future work)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from vlaprobe.cli import main
+from vlaprobe.configs.env import EnvConfig, SuiteName
+from vlaprobe.envs.bddl import Fact
+from vlaprobe.envs.libero import LiberoTaskEnv
+from vlaprobe.symbols import atom
+
+pytestmark = pytest.mark.libero
+
+ONE_TASK: dict[SuiteName, int] = {
+    "libero_spatial": 4,  # the bowl in the open top drawer
+    "libero_object": 0,  # groceries and a basket on the floor
+    "libero_goal": 0,  # all drawers closed, the stove off
+    "libero_10": 9,  # the microwave open, two mugs on a kitchen table
+    "libero_90": 0,  # the top drawer open
+}
+
+
+def our_truth(env: LiberoTaskEnv, fact: Fact, true: set[str]) -> bool:
+    """What our atoms (or the scene's close/off rules) say of one BDDL ``:init`` fact."""
+    scene, state = env.scene, env.world_state()
+    pred, args = fact.predicate, fact.args
+    if pred == "on":
+        a, b = args
+        if b in scene.tabletop:
+            return atom("on", a, b) in true
+        if b in scene.region_parent:
+            return atom("on", a, scene.region_parent[b]) in true
+        return atom("on-table", a) in true  # a placement region on the workspace
+    if pred == "in":
+        return atom("inside", *args) in true
+    if pred == "open":
+        return atom("open", args[0]) in true
+    if pred == "close":
+        i = scene.openable.index(args[0])
+        return bool(scene.close_articulation[i].is_active(np.asarray(state.container_qpos[i])))
+    if pred in ("turnon", "turnoff"):
+        i = scene.on_off.index(args[0])
+        rules = scene.on_off_articulation if pred == "turnon" else scene.off_articulation
+        return bool(rules[i].is_active(np.asarray(state.on_off_qpos[i])))
+    raise AssertionError(f"unexpected init fact {fact}")
+
+
+@pytest.mark.parametrize("suite", list(ONE_TASK))
+def test_init_atoms_agree_with_the_bddl_and_libero(suite: SuiteName) -> None:
+    from tests.envs.test_libero import bddl_scene_agrees_with_the_simulator
+
+    from vlaprobe.envs.bddl_scene import task_bddl
+
+    task = ONE_TASK[suite]
+    problem = task_bddl(suite, task)
+    with LiberoTaskEnv(task, EnvConfig(suite=suite, render=False)) as env:
+        bddl_scene_agrees_with_the_simulator(env)
+        for init in (0, 1):
+            env.reset(init)
+            obj, act = env.labeler.as_dict(env.world_state())
+            true = {k for k, v in {**obj, **act}.items() if v}
+            for fact in problem.init:
+                assert our_truth(env, fact, true), (suite, task, init, fact)
+                names = set(env.scene.tabletop) | set(env.scene.regions)
+                if set(fact.args) <= names:  # LIBERO's own predicate over objects and their regions
+                    assert env.libero_predicate(fact.predicate, *fact.args), (suite, task, init, fact)
+            for conjunct in env.goal_conjunction.conjuncts:  # no task starts solved
+                if conjunct.predicate in ("On", "In") and set(conjunct.args) <= names:
+                    assert not env.libero_predicate(conjunct.predicate, *conjunct.args)
+
+
+def test_atoms_prints_a_goal_suite_task(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["atoms", "--suite", "libero_goal", "--task", "0", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["suite"] == "libero_goal" and result["goal"] == "Open(wooden_cabinet_1_middle_region)"
+    assert result["object"]["open(wooden_cabinet_1_middle_region)"] == 0
+    assert result["object"]["on-table(wine_rack_1)"] == 1
+    assert "should-move-towards(akita_black_bowl_1)" in result["undefined"]
+    assert not any(a.startswith("should-move-towards") for a in result["action"])
+    assert len(result["object"]) == 215 and len(result["action"]) == 4
