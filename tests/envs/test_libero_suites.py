@@ -4,13 +4,14 @@ and with LIBERO's own predicates, and ``vlaprobe atoms`` prints them (issue #35;
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
 
 from vlaprobe.cli import main
-from vlaprobe.configs.env import EnvConfig, SuiteName
-from vlaprobe.envs.bddl import Fact
+from vlaprobe.configs.env import SUITES, EnvConfig, SuiteName
+from vlaprobe.envs.bddl import BddlProblem, Fact
 from vlaprobe.envs.libero import LiberoTaskEnv
 from vlaprobe.symbols import atom
 
@@ -50,28 +51,53 @@ def our_truth(env: LiberoTaskEnv, fact: Fact, true: set[str]) -> bool:
     raise AssertionError(f"unexpected init fact {fact}")
 
 
-@pytest.mark.parametrize("suite", list(ONE_TASK))
-def test_init_atoms_agree_with_the_bddl_and_libero(suite: SuiteName) -> None:
+def init_check(env: LiberoTaskEnv, problem: BddlProblem, init: int) -> tuple[int, list[str]]:
+    """Reset to ``init`` and check every BDDL ``:init`` fact: our atoms, and LIBERO's own predicate where its
+    arguments are objects or their regions; no goal conjunct over objects holds yet. (checks, disagreements)."""
+    env.reset(init)
+    obj, act = env.labeler.as_dict(env.world_state())
+    true = {k for k, v in {**obj, **act}.items() if v}
+    names = set(env.scene.tabletop) | set(env.scene.regions)
+    checks, wrong = 0, []
+    for fact in problem.init:
+        checks += 1
+        if not our_truth(env, fact, true):
+            wrong.append(f"init {init}: ours says not {fact.predicate}{fact.args}")
+        if set(fact.args) <= names:
+            checks += 1
+            if not env.libero_predicate(fact.predicate, *fact.args):
+                wrong.append(f"init {init}: LIBERO says not {fact.predicate}{fact.args}")
+    for conjunct in problem.goal.conjuncts:
+        if conjunct.predicate in ("On", "In") and set(conjunct.args) <= names:
+            checks += 1
+            if env.libero_predicate(conjunct.predicate, *conjunct.args):
+                wrong.append(f"init {init}: the goal's {conjunct} holds already")
+    return checks, wrong
+
+
+SWEEP = os.environ.get("VLAPROBE_LIBERO_SWEEP") == "1"
+"""``VLAPROBE_LIBERO_SWEEP=1``: every task of every suite (minutes); else one task per suite."""
+
+
+def _cases() -> list[tuple[SuiteName, int]]:
+    if not SWEEP:
+        return list(ONE_TASK.items())
+    from vlaprobe.envs.libero import suite_tasks
+
+    return [(suite, task) for suite in SUITES for task, _ in suite_tasks(suite)]
+
+
+@pytest.mark.parametrize(("suite", "task"), _cases())
+def test_init_atoms_agree_with_the_bddl_and_libero(suite: SuiteName, task: int) -> None:
     from tests.envs.test_libero import bddl_scene_agrees_with_the_simulator
 
     from vlaprobe.envs.bddl_scene import task_bddl
 
-    task = ONE_TASK[suite]
     problem = task_bddl(suite, task)
     with LiberoTaskEnv(task, EnvConfig(suite=suite, render=False)) as env:
         bddl_scene_agrees_with_the_simulator(env)
-        for init in (0, 1):
-            env.reset(init)
-            obj, act = env.labeler.as_dict(env.world_state())
-            true = {k for k, v in {**obj, **act}.items() if v}
-            for fact in problem.init:
-                assert our_truth(env, fact, true), (suite, task, init, fact)
-                names = set(env.scene.tabletop) | set(env.scene.regions)
-                if set(fact.args) <= names:  # LIBERO's own predicate over objects and their regions
-                    assert env.libero_predicate(fact.predicate, *fact.args), (suite, task, init, fact)
-            for conjunct in env.goal_conjunction.conjuncts:  # no task starts solved
-                if conjunct.predicate in ("On", "In") and set(conjunct.args) <= names:
-                    assert not env.libero_predicate(conjunct.predicate, *conjunct.args)
+        wrong = [w for init in (0, 1) for w in init_check(env, problem, init)[1]]
+    assert not wrong, f"{suite} task {task}: " + "; ".join(wrong)
 
 
 def test_atoms_prints_a_goal_suite_task(capsys: pytest.CaptureFixture[str]) -> None:
@@ -83,3 +109,31 @@ def test_atoms_prints_a_goal_suite_task(capsys: pytest.CaptureFixture[str]) -> N
     assert "should-move-towards(akita_black_bowl_1)" in result["undefined"]
     assert not any(a.startswith("should-move-towards") for a in result["action"])
     assert len(result["object"]) == 215 and len(result["action"]) == 4
+
+
+def sweep() -> None:
+    """Every task of every suite, init states 0 and 1: per suite, the checks made and the disagreements."""
+    from vlaprobe.envs.bddl_scene import task_bddl
+    from vlaprobe.envs.libero import suite_tasks
+
+    for suite in SUITES:
+        tasks = checks = 0
+        wrong: list[str] = []
+        for task, _ in suite_tasks(suite):
+            problem = task_bddl(suite, task)
+            with LiberoTaskEnv(task, EnvConfig(suite=suite, render=False)) as env:
+                for init in (0, 1):
+                    n, w = init_check(env, problem, init)
+                    checks += n
+                    wrong += [f"task {task} {x}" for x in w]
+            tasks += 1
+        print(
+            f"{suite}: {tasks} tasks, {checks} checks, {len(wrong)} disagreements",
+            *wrong,
+            sep="\n  ",
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    sweep()
