@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
@@ -51,28 +52,40 @@ def our_truth(env: LiberoTaskEnv, fact: Fact, true: set[str]) -> bool:
     raise AssertionError(f"unexpected init fact {fact}")
 
 
-def init_check(env: LiberoTaskEnv, problem: BddlProblem, init: int) -> tuple[int, list[str]]:
-    """Reset to ``init`` and check every BDDL ``:init`` fact: our atoms, and LIBERO's own predicate where its
-    arguments are objects or their regions; no goal conjunct over objects holds yet. (checks, disagreements)."""
+@dataclass
+class InitCheck:
+    """What one settled init state says of its BDDL ``:init``: facts checked, our disagreements with LIBERO or
+    the BDDL, and facts of the BDDL that LIBERO's own predicate finds false too (the BDDL, not us)."""
+
+    checks: int = 0
+    wrong: list[str] = field(default_factory=list)
+    unmet: list[str] = field(default_factory=list)
+
+
+def init_check(env: LiberoTaskEnv, problem: BddlProblem, init: int) -> InitCheck:
+    """Reset to ``init`` and check every BDDL ``:init`` fact: our atoms against the fact, and against LIBERO's
+    own predicate where its arguments are objects or their regions; no goal conjunct over objects holds yet."""
     env.reset(init)
     obj, act = env.labeler.as_dict(env.world_state())
     true = {k for k, v in {**obj, **act}.items() if v}
     names = set(env.scene.tabletop) | set(env.scene.regions)
-    checks, wrong = 0, []
+    out = InitCheck()
     for fact in problem.init:
-        checks += 1
-        if not our_truth(env, fact, true):
-            wrong.append(f"init {init}: ours says not {fact.predicate}{fact.args}")
-        if set(fact.args) <= names:
-            checks += 1
-            if not env.libero_predicate(fact.predicate, *fact.args):
-                wrong.append(f"init {init}: LIBERO says not {fact.predicate}{fact.args}")
+        out.checks += 1
+        ours = our_truth(env, fact, true)
+        libero = env.libero_predicate(fact.predicate, *fact.args) if set(fact.args) <= names else None
+        if libero is not None and ours != libero:
+            out.wrong.append(f"init {init}: ours {ours}, LIBERO's {libero} for {fact.predicate}{fact.args}")
+        elif not ours and libero is None:
+            out.wrong.append(f"init {init}: ours says not {fact.predicate}{fact.args}")
+        elif not ours:
+            out.unmet.append(f"init {init}: neither LIBERO nor ours finds {fact.predicate}{fact.args}")
     for conjunct in problem.goal.conjuncts:
         if conjunct.predicate in ("On", "In") and set(conjunct.args) <= names:
-            checks += 1
+            out.checks += 1
             if env.libero_predicate(conjunct.predicate, *conjunct.args):
-                wrong.append(f"init {init}: the goal's {conjunct} holds already")
-    return checks, wrong
+                out.wrong.append(f"init {init}: the goal's {conjunct} holds already")
+    return out
 
 
 SWEEP = os.environ.get("VLAPROBE_LIBERO_SWEEP") == "1"
@@ -96,8 +109,11 @@ def test_init_atoms_agree_with_the_bddl_and_libero(suite: SuiteName, task: int) 
     problem = task_bddl(suite, task)
     with LiberoTaskEnv(task, EnvConfig(suite=suite, render=False)) as env:
         bddl_scene_agrees_with_the_simulator(env)
-        wrong = [w for init in (0, 1) for w in init_check(env, problem, init)[1]]
+        checks = [init_check(env, problem, init) for init in (0, 1)]
+    wrong = [w for c in checks for w in c.wrong]
     assert not wrong, f"{suite} task {task}: " + "; ".join(wrong)
+    if (suite, task) in ONE_TASK.items():
+        assert not any(c.unmet for c in checks)
 
 
 def test_atoms_prints_a_goal_suite_task(capsys: pytest.CaptureFixture[str]) -> None:
@@ -112,24 +128,27 @@ def test_atoms_prints_a_goal_suite_task(capsys: pytest.CaptureFixture[str]) -> N
 
 
 def sweep() -> None:
-    """Every task of every suite, init states 0 and 1: per suite, the checks made and the disagreements."""
+    """Every task of every suite, init states 0 and 1: per suite, the checks made, our disagreements, and the BDDL
+    facts LIBERO's own predicate finds false too."""
     from vlaprobe.envs.bddl_scene import task_bddl
     from vlaprobe.envs.libero import suite_tasks
 
     for suite in SUITES:
-        tasks = checks = 0
-        wrong: list[str] = []
+        total, tasks = InitCheck(), 0
         for task, _ in suite_tasks(suite):
             problem = task_bddl(suite, task)
             with LiberoTaskEnv(task, EnvConfig(suite=suite, render=False)) as env:
                 for init in (0, 1):
-                    n, w = init_check(env, problem, init)
-                    checks += n
-                    wrong += [f"task {task} {x}" for x in w]
+                    c = init_check(env, problem, init)
+                    total.checks += c.checks
+                    total.wrong += [f"task {task} {x}" for x in c.wrong]
+                    total.unmet += [f"task {task} {x}" for x in c.unmet]
             tasks += 1
         print(
-            f"{suite}: {tasks} tasks, {checks} checks, {len(wrong)} disagreements",
-            *wrong,
+            f"{suite}: {tasks} tasks, {total.checks} checks, {len(total.wrong)} disagreements, "
+            f"{len(total.unmet)} BDDL facts false for LIBERO too",
+            *total.wrong,
+            *total.unmet,
             sep="\n  ",
             flush=True,
         )
