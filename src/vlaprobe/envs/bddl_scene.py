@@ -12,7 +12,7 @@ own rules:
   ``is_open``/``is_close`` rules; a region without a joint is a **receptacle** when some task of the five suites
   puts something ``In`` it (a basket, a microwave's heating region, a caddy's compartments, a shelf's layers),
   else a **surface** (a cabinet's top, a stove's cook region, a wine rack's top);
-- fixtures whose category has ``is_open`` but no region on a joint are **doors** (the microwave);
+- fixtures whose category has ``is_open`` but no site of its XML on a joint are **doors** (the microwave);
   categories with ``turn_on`` are **on-off** (the flat stove; LIBERO's faucets have no turn-on rule).
 
 Regions on the workspace (``main_table_plate_region``) are placement aids, not objects: a goal may name one
@@ -102,7 +102,6 @@ def scene_from_problem(problem: BddlProblem, assets: Path) -> Scene:
     surfaces: list[str] = []
     receptacles: list[str] = []
     parents: dict[str, str] = {}
-    jointed: set[str] = set()
     for region in problem.regions:
         if region.target not in named:
             continue  # a placement aid on the workspace
@@ -111,12 +110,15 @@ def scene_from_problem(problem: BddlProblem, assets: Path) -> Scene:
         parents[region.name] = owner.name
         if joints.get(region.local):
             containers.append(region.name)
-            jointed.add(owner.name)
         elif (owner.category, region.local) in in_regions():
             receptacles.append(region.name)
         else:
             surfaces.append(region.name)
-    doors = tuple(f.name for f in fixtures if _facts(f).is_open is not None and f.name not in jointed)
+    doors = tuple(
+        f.name
+        for f in fixtures
+        if _facts(f).is_open is not None and not any(site_joints(assets / _facts(f).xml).values())
+    )
     on_off = tuple(f.name for f in fixtures if _facts(f).turn_on is not None)
     openers = [named[parents[c]] for c in containers] + [named[d] for d in doors]
     return Scene(
