@@ -145,3 +145,23 @@ def test_info_on_a_non_store_is_one_line(tmp_path: Path, capsys: pytest.CaptureF
     assert main(["info", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("vlaprobe: error:") and "\n" not in err
+
+
+@pytest.mark.parametrize("flag", ["--suite", "--env.suite"])
+def test_tasks_lists_the_suite_given(flag: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["tasks", flag, "libero_goal", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r["task"] for r in rows] == list(range(10))
+    assert rows[0]["instruction"] == "open the middle drawer of the cabinet"
+    assert main(["tasks", flag, "libero_90", "--json"]) == 0
+    assert len(json.loads(capsys.readouterr().out)) == 90
+
+
+def test_suite_names_are_declared_once() -> None:
+    from vlaprobe.configs.env import SUITES, EnvConfig
+
+    assert SUITES == ("libero_spatial", "libero_object", "libero_goal", "libero_10", "libero_90")
+    assert EnvConfig().suite == "libero_spatial"
+    assert config_from_dict(EnvConfig, {"suite": "libero_10"}).suite == "libero_10"
+    with pytest.raises(VlaprobeError, match="field 'suite' expects one of 'libero_spatial'"):
+        config_from_dict(EnvConfig, {"suite": "libero_100"})

@@ -358,6 +358,48 @@ def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.Captu
     assert f"--recordings {a_file} is a file, not a folder" in err
 
 
+# ----- issue 35: suites -------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (
+            ["tasks", "--suite", "libero_100"],
+            "invalid choice 'libero_100' for argument '--suite/--env.suite'",
+        ),
+        (["atoms", "--env.suite", "spatial"], "invalid choice 'spatial'"),
+        (
+            ["atoms", "--suite", "libero_goal", "--task", "10"],
+            "--task 10 out of range; libero_goal has tasks 0-9",
+        ),
+        (
+            ["atoms", "--suite", "libero_90", "--task", "90"],
+            "--task 90 out of range; libero_90 has tasks 0-89",
+        ),
+        (["atoms", "--init", "60"], "--init 60 does not exist; the task has init states 0-49"),
+        (
+            ["atoms", "--suite", "libero_10", "--init", "50"],
+            "--init 50 does not exist; the task has init states 0-49",
+        ),
+        (
+            ["collect", "--suite", "libero_goal", "--out", "OUT"],
+            "--suite libero_goal: `vlaprobe collect` runs on",
+        ),
+        (
+            ["run", "--suite", "libero_object", "--out", "OUT"],
+            "--suite libero_object: `vlaprobe run` runs on",
+        ),
+        (["serve", "--suite", "libero_10", "--probes", "OUT"], "--suite libero_10: `vlaprobe serve` runs on"),
+    ],
+)
+def test_suite_inputs_are_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: list[str], message: str
+) -> None:
+    argv = [str(tmp_path / "out") if a == "OUT" else a for a in argv]
+    err = one_line_error(capsys, argv)
+    assert message in err, err
+    assert not (tmp_path / "out").exists()
+
+
 # ----- issue 20: the inputs that still crashed or were silently accepted --------------------------------------
 @pytest.mark.parametrize(
     ("argv", "message"),

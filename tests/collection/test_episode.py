@@ -57,3 +57,25 @@ def test_a_stored_episode_yields_the_loops_records(tmp_path: Path) -> None:
     np.testing.assert_array_equal(r.model_image, ep["image"][1])
     assert r.step == int(ep["step"][1]) and r.raw_image is None and r.world is None and r.timings is None
     assert not any(r.perturbed for r in records)  # collected without --perturb
+
+
+def test_a_scene_stored_before_issue_35_reads_back() -> None:
+    """Stores written before the suites carry no receptacles, doors, close or off rules, and articulations without
+    ``strict``: they read back with the defaults, the same atoms and the same rules."""
+    import dataclasses
+
+    from vlaprobe.collection.episode import stored_scene
+    from vlaprobe.envs.spatial_scene import SPATIAL_GOAL, SPATIAL_SCENE
+    from vlaprobe.symbols import build_vocabulary
+
+    old = json.loads(json.dumps(dataclasses.asdict(SPATIAL_SCENE)))
+    for key in ("receptacles", "doors", "door_articulation", "close_articulation", "off_articulation"):
+        del old[key]
+    for key in ("container_articulation", "on_off_articulation"):
+        for rule in old[key]:
+            del rule["strict"]
+    scene, goal = stored_scene({"scene": old, "goal": dataclasses.asdict(SPATIAL_GOAL)})
+    assert scene == dataclasses.replace(SPATIAL_SCENE, close_articulation=(), off_articulation=())
+    old_vocab, vocab = build_vocabulary(scene), build_vocabulary(SPATIAL_SCENE)
+    assert (old_vocab.object_atoms, old_vocab.action_atoms) == (vocab.object_atoms, vocab.action_atoms)
+    assert goal == SPATIAL_GOAL

@@ -8,8 +8,16 @@ from pathlib import Path
 
 import pytest
 
+from vlaprobe.configs.env import SUITES
 from vlaprobe.configs.suite import TasksConfig
-from vlaprobe.envs.assets import PNG_END, PNG_SIGNATURE, SPATIAL_XML_FILES, check_assets
+from vlaprobe.envs.assets import (
+    PNG_END,
+    PNG_SIGNATURE,
+    SPATIAL_ASSETS,
+    SPATIAL_XML_FILES,
+    check_assets,
+    referenced_files,
+)
 from vlaprobe.envs.setup import prepare_libero, resolve_assets
 from vlaprobe.envs.suite import tasks
 from vlaprobe.errors import VlaprobeError
@@ -135,3 +143,77 @@ def test_listing_tasks_needs_no_assets(
     assert tasks(TasksConfig()) == 0
     rows = capsys.readouterr().out.splitlines()
     assert len(rows) == 10 and rows[0].startswith(" 0  pick up the black bowl")
+
+
+# ----- every suite (issue #35) ----------------------------------------------------------------------------
+needs_assets = pytest.mark.skipif(not REAL_ASSETS, reason="needs LIBERO's assets (VLAPROBE_LIBERO_ASSETS)")
+
+
+def test_spatial_files_are_what_its_bddl_files_name() -> None:
+    from vlaprobe.envs.suite_assets import asset_files, suite_asset_files
+
+    derived = suite_asset_files("libero_spatial")
+    assert set(derived.xml) == set(SPATIAL_XML_FILES) and derived.xml[0] == SPATIAL_XML_FILES[0]
+    assert derived.styled == SPATIAL_ASSETS.styled
+    assert asset_files("libero_spatial") is SPATIAL_ASSETS
+    kitchen = suite_asset_files("libero_10").styled["scenes/libero_kitchen_tabletop_base_style.xml"]
+    assert kitchen == {"texplane": "gray_ceramic_tile.png", "tex-wall": "yellow_linen_wall_texture.png"}
+
+
+@needs_assets
+@pytest.mark.parametrize("suite", SUITES)
+def test_every_suite_loads_from_the_shared_assets(suite: str) -> None:
+    from vlaprobe.envs.suite_assets import asset_files
+
+    check_assets(Path(str(REAL_ASSETS)).resolve(), asset_files(suite), suite)  # type: ignore[arg-type]
+
+
+def linked_copy(tmp_path: Path) -> Path:
+    """The real assets folder as a tree of links to its files (folders real, so a file can be taken away)."""
+    real = Path(str(REAL_ASSETS)).resolve()
+    copy = tmp_path / "assets"
+    for path in real.rglob("*"):
+        if path.is_file():
+            target = copy / path.relative_to(real)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.symlink_to(path)
+    return copy
+
+
+@needs_assets
+def test_a_suite_missing_a_file_is_refused_naming_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from vlaprobe.cli import main
+    from vlaprobe.envs.suite_assets import asset_files
+
+    copy = linked_copy(tmp_path)
+    (copy / "stable_scanned_objects/basket/basket.xml").unlink()
+    check_assets(copy, asset_files("libero_spatial"))  # LIBERO-spatial has no basket: its files are whole
+    with pytest.raises(VlaprobeError) as info:
+        check_assets(copy, asset_files("libero_object"), "libero_object")
+    message = str(info.value)
+    assert "\n" not in message and message.startswith(
+        f"LIBERO assets folder {copy} is missing a file of libero_object"
+    )
+    assert "stable_scanned_objects/basket/basket.xml is missing" in message
+    # before any work: `vlaprobe atoms` refuses in one line, no simulator built
+    assert main(["atoms", "--suite", "libero_object", "--env.assets", str(copy)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "stable_scanned_objects/basket/basket.xml is missing" in err
+
+
+@needs_assets
+def test_a_missing_mesh_names_the_xml_that_uses_it(tmp_path: Path) -> None:
+    from vlaprobe.envs.suite_assets import asset_files
+
+    copy = linked_copy(tmp_path)
+    microwave = copy / "articulated_objects/microwave.xml"
+    mesh = referenced_files(microwave)[0]
+    mesh.unlink()
+    with pytest.raises(
+        VlaprobeError,
+        match=r"is missing a file of libero_10: .* \(used by articulated_objects/microwave.xml\) is missing",
+    ):
+        check_assets(copy, asset_files("libero_10"), "libero_10")
+    check_assets(copy, asset_files("libero_goal"), "libero_goal")  # no microwave there

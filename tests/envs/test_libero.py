@@ -192,3 +192,29 @@ def test_same_init_gives_the_same_trajectory() -> None:
         env.reset(9)
         env.step(actions[0])  # disturb solver and gripper state in between
         np.testing.assert_array_equal(rollout(env), first)
+
+
+def bddl_scene_agrees_with_the_simulator(env: LiberoTaskEnv) -> None:
+    """The BDDL-derived scene names what the built simulator holds: the same objects and fixtures, drawers whose
+    sites sit on joints, surfaces and receptacles whose sites do not, the same region parents, doors with a joint,
+    on-off fixtures with LIBERO's turn-on rule."""
+    e, scene = env.sim_env, env.scene
+    assert scene.pickupable == tuple(e.objects_dict)
+    assert scene.fixtures == tuple(e.fixtures_dict)
+    sites = e.object_sites_dict
+    assert all(sites[c].joints for c in scene.containers)
+    assert not any(sites[r].joints for r in scene.surfaces + scene.receptacles)
+    assert {r: sites[r].parent_name for r in scene.regions} == scene.region_parent
+    jointed = {sites[n].parent_name for n in sites if getattr(sites[n], "joints", None)}
+    assert set(scene.doors) == {
+        f
+        for f in scene.fixtures
+        if e.get_object(f).joints and f not in jointed and not hasattr(e.get_object(f), "turn_on")
+    }
+    assert set(scene.on_off) == {f for f in scene.fixtures if hasattr(e.get_object(f), "turn_on")}
+
+
+def test_the_bddl_scene_is_the_simulators() -> None:
+    for task in (4, 9):
+        with LiberoTaskEnv(task, EnvConfig(render=False)) as env:
+            bddl_scene_agrees_with_the_simulator(env)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -430,3 +432,40 @@ def test_a_placed_bowl_that_bounces_does_not_get_the_plate_as_target_again() -> 
         state.lin_vel[IDX["bowl"]] = (0.0, 0.0, 0.05)
         seq.append(towards(truths(state, labeler)))
     assert seq == [plate, plate, plate, set(), set(), set()]
+
+
+def test_receptacles_and_doors() -> None:
+    """A receptacle (a basket's contain region, after the surfaces in the region arrays) takes ``inside`` like a
+    drawer; a door (a fixture's own joint, after the drawers in ``container_qpos``) takes ``open``."""
+    scene = dataclasses.replace(
+        SCENE,
+        receptacles=("plate_contain_region",),
+        doors=("stove",),
+        door_articulation=(Articulation(-1.3, below=True),),
+        region_parent={**SCENE.region_parent, "plate_contain_region": "plate"},
+    )
+    vocab = build_vocabulary(scene)
+    assert vocab.object_atoms[-9:-5] == (
+        "inside(ramekin,plate_contain_region)",
+        "inside(plate,cab_top_region)",
+        "inside(plate,cab_middle_region)",
+        "inside(plate,cab_bottom_region)",
+    )  # not inside(plate,plate_contain_region): never inside its own region
+    assert vocab.object_atoms[-3:-1] == ("open(cab_bottom_region)", "open(stove)")
+    assert len(vocab.object_atoms) == len(build_vocabulary(SCENE).object_atoms) + 4 + 1
+    base = make_state()
+    basket = np.array([0.3, 0.0, 0.95])
+    state = make_state(
+        region_pos=np.vstack([base.region_pos, basket]),
+        region_mat=np.stack([np.eye(3)] * 6),
+        region_size=np.vstack([base.region_size, [0.1, 0.1, 0.05]]),
+        container_qpos=np.array([0.0, 0.0, 0.0, -1.5]),
+    )
+    place(state, "box", tuple(basket))
+    obj, _ = Labeler(scene, GOAL)(state)
+    t = {a for a, v in zip(vocab.object_atoms, obj, strict=True) if v}
+    assert "inside(box,plate_contain_region)" in t and "inside(bowl,plate_contain_region)" not in t
+    assert "open(stove)" in t and "open(cab_top_region)" not in t
+    state.container_qpos = np.array([0.0, 0.0, 0.0, -1.0])
+    obj, _ = Labeler(scene, GOAL)(state)
+    assert not obj[vocab.object_atoms.index("open(stove)")]

@@ -175,7 +175,7 @@ def collect(cfg: CollectConfig, make_worker: MakeWorker = Worker) -> CollectResu
     start = time.perf_counter()
     out = Path(cfg.out)
     check_output_folder(out)  # a file or an unwritable path fails here, not after the model has loaded
-    resolve_assets(cfg.env.assets)  # bad LIBERO assets fail before the model loads
+    resolve_assets(cfg.env.assets, cfg.env.suite)  # bad LIBERO assets fail before the model loads
     if out.is_dir() and any(out.iterdir()):  # fail fast, before any model is loaded
         check_compatible(out, read_meta(out, "choose a new or empty folder for --out"), _run_meta(cfg))
         require_intact(out)  # a damaged episode would otherwise block or poison the resume

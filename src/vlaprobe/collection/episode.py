@@ -248,8 +248,13 @@ def stored_scene(attrs: Mapping[str, Json]) -> tuple[Scene, Goal]:
 
 
 def _scene(stored: Mapping[str, Json]) -> Scene:
+    """A stored scene; fields added since it was stored (receptacles, doors, close and off rules: issue #35) take
+    their defaults, which is what those scenes had."""
     kwargs: JsonObject = {}
     for f in dataclasses.fields(Scene):
+        has_default = f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
+        if f.name not in stored and has_default:
+            continue
         value = stored[f.name]
         if f.name.endswith("articulation"):
             value = tuple(Articulation(**a) for a in value)

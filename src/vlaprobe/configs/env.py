@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import typing
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal
@@ -10,13 +11,19 @@ import tyro
 
 Inits = Literal["fixed", "sampled", "sampled-swap"]
 
+SuiteName = Literal["libero_spatial", "libero_object", "libero_goal", "libero_10", "libero_90"]
+"""The LIBERO benchmark suites, named as LIBERO's ``benchmark`` names them (defined once, imported elsewhere)."""
+SUITES: tuple[SuiteName, ...] = typing.get_args(SuiteName)
+
 
 @dataclass
 class EnvConfig:
     """How to build a LIBERO task environment."""
 
-    suite: Literal["libero_spatial"] = "libero_spatial"
-    """LIBERO benchmark suite. Only LIBERO-spatial has a symbolic vocabulary so far."""
+    suite: Annotated[SuiteName, tyro.conf.arg(aliases=("--suite",))] = "libero_spatial"
+    """LIBERO benchmark suite (``--env.suite`` or ``--suite``). The scene, vocabulary and goal of every suite are
+    read from its BDDL files (docs/symbols.md); collection, probing and the cognition are tested on
+    LIBERO-spatial."""
     assets: Path | None = None
     """LIBERO assets folder (meshes, textures, scenes). Default: $VLAPROBE_LIBERO_ASSETS, else the
     assets inside the installed libero package, else LIBERO's own download."""

@@ -1,10 +1,11 @@
-"""Check a LIBERO assets folder before anything is built from it: every file LIBERO-spatial loads, cheaply.
+"""Check a LIBERO assets folder before anything is built from it: every file a suite loads, cheaply.
 
 A missing texture, a missing or truncated mesh or a malformed XML otherwise surfaces as a MuJoCo/XML traceback
-deep inside robosuite, after the model has been loaded. :func:`check_assets` reads the seven XML files the
-suite's scene is built from, follows every file they reference (meshes, textures) the way robosuite resolves
-them (relative to the referencing XML's folder), and checks each file's structure from its header and tail
-without decoding it: ~30 files, a few milliseconds.
+deep inside robosuite, after the model has been loaded. :func:`check_assets` reads the XML files the suite's
+scenes are built from (:class:`AssetFiles`: LIBERO-spatial's seven are :data:`SPATIAL_ASSETS`; any suite's come
+from its BDDL files, ``vlaprobe.envs.suite_assets``), follows every file they reference (meshes, textures) the
+way robosuite resolves them (relative to the referencing XML's folder), and checks each file's structure from
+its header and tail without decoding it: ~30 files for LIBERO-spatial, a few milliseconds.
 
 What each check catches:
 - XML: parses (``xml.etree``); a syntax error names the line.
@@ -19,6 +20,8 @@ from __future__ import annotations
 
 import struct
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from vlaprobe.errors import VlaprobeError
@@ -43,6 +46,19 @@ STYLED_TEXTURES: dict[str, str] = {
 """Textures whose file LIBERO's ``TableArena`` swaps for its style's (same folder, other name): the floor and wall
 styles LIBERO-spatial's problem class selects ("light-gray", "light-gray-plaster")."""
 
+
+@dataclass(frozen=True)
+class AssetFiles:
+    """What a suite's scenes load: XML files (relative to the assets folder) and, per scene XML, the textures its
+    arena swaps for its style's file (texture name -> file name in the same folder)."""
+
+    xml: tuple[str, ...]
+    styled: Mapping[str, Mapping[str, str]] = field(default_factory=dict)
+
+
+SPATIAL_ASSETS = AssetFiles(SPATIAL_XML_FILES, {SPATIAL_XML_FILES[0]: STYLED_TEXTURES})
+"""LIBERO-spatial's files (``tests/envs/test_assets.py`` pins them equal to what its BDDL files name)."""
+
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 PNG_END = b"IEND\xaeB`\x82"  # the IEND chunk's type and CRC: the last 8 bytes of every complete PNG
 
@@ -50,8 +66,9 @@ PNG_END = b"IEND\xaeB`\x82"  # the IEND chunk's type and CRC: the last 8 bytes o
 FIX = f"restore it from a complete copy of LIBERO's assets, or point {ASSETS_ENV} (or --env.assets) at one"
 
 
-def referenced_files(xml_path: Path) -> list[Path]:
-    """Files an asset XML references (``file*`` attributes), resolved as robosuite does; styled textures swapped.
+def referenced_files(xml_path: Path, styled: Mapping[str, str] = STYLED_TEXTURES) -> list[Path]:
+    """Files an asset XML references (``file*`` attributes), resolved as robosuite does; ``styled`` textures
+    (name -> file) swapped.
 
     When two assets share a tag and a name only the first is loaded (robosuite's ``merge_assets`` skips names it
     already holds): LIBERO's ``flat_stove.xml`` names a second ``tex-stove_knob`` whose file does not exist.
@@ -69,8 +86,8 @@ def referenced_files(xml_path: Path) -> list[Path]:
             if not key.startswith("file") or not value:
                 continue
             path = xml_path.parent / value
-            if node.tag == "texture" and name in STYLED_TEXTURES:
-                path = path.with_name(STYLED_TEXTURES[name])
+            if node.tag == "texture" and name is not None and name in styled:
+                path = path.with_name(styled[name])
             files.append(path)
     return files
 
@@ -112,17 +129,20 @@ def file_problem(path: Path) -> str | None:
     return None
 
 
-def check_assets(folder: Path) -> None:
-    """Raise a one-line :class:`VlaprobeError` naming the first file of ``folder`` LIBERO-spatial cannot load."""
-    for rel in SPATIAL_XML_FILES:
+def check_assets(folder: Path, files: AssetFiles = SPATIAL_ASSETS, suite: str = "libero_spatial") -> None:
+    """Raise a one-line :class:`VlaprobeError` naming the first file of ``folder`` that ``suite`` (its ``files``)
+    cannot load."""
+    for rel in files.xml:
         xml_path = folder / rel
         problem = file_problem(xml_path)
         if problem is not None:
-            raise VlaprobeError(f"LIBERO assets folder {folder} is damaged: {rel} {problem}; {FIX}")
-        for path in referenced_files(xml_path):
+            what = "is missing a file" if problem == "is missing" else "is damaged"
+            raise VlaprobeError(f"LIBERO assets folder {folder} {what} of {suite}: {rel} {problem}; {FIX}")
+        for path in referenced_files(xml_path, files.styled.get(rel, {})):
             problem = file_problem(path)
             if problem is not None:
                 shown = path.resolve().relative_to(folder) if path.resolve().is_relative_to(folder) else path
+                what = "is missing a file" if problem == "is missing" else "is damaged"
                 raise VlaprobeError(
-                    f"LIBERO assets folder {folder} is damaged: {shown} (used by {rel}) {problem}; {FIX}"
+                    f"LIBERO assets folder {folder} {what} of {suite}: {shown} (used by {rel}) {problem}; {FIX}"
                 )

@@ -8,12 +8,15 @@ from __future__ import annotations
 import re
 
 from vlaprobe.configs.checks import at_least, check_env
-from vlaprobe.configs.env import EnvConfig
+from vlaprobe.configs.collect import CollectConfig
+from vlaprobe.configs.env import EnvConfig, SuiteName
+from vlaprobe.configs.run import RunConfig
+from vlaprobe.configs.serve import ServeConfig
 from vlaprobe.configs.suite import AtomsConfig, TasksConfig
 from vlaprobe.errors import VlaprobeError
 
 
-def check_tasks(tasks: tuple[int, ...], suite: str, flag: str) -> list[int]:
+def check_tasks(tasks: tuple[int, ...], suite: SuiteName, flag: str) -> list[int]:
     """Every selected task exists in ``suite`` (read from LIBERO's task list: no assets, no model); the suite's
     task indices."""
     from vlaprobe.envs.libero import suite_tasks
@@ -77,9 +80,29 @@ def check_atoms(cfg: AtomsConfig) -> None:
         raise VlaprobeError(f"--init {cfg.init} does not exist; the task has init states 0-{inits - 1}")
 
 
+EPISODE_SUITES: tuple[SuiteName, ...] = ("libero_spatial",)
+"""Suites whose episodes can be collected, probed and monitored: the scripted expert, the step-wise goal and the
+cognition know LIBERO-spatial's one pick-and-place so far (issue #35); ``tasks`` and ``atoms`` take every suite."""
+
+
+def check_episode_suite(env: EnvConfig, command: str) -> None:
+    """Refuse a suite whose episodes ``command`` cannot yet produce or follow, before any work."""
+    if env.suite not in EPISODE_SUITES:
+        raise VlaprobeError(
+            f"--suite {env.suite}: `vlaprobe {command}` runs on {', '.join(EPISODE_SUITES)} only so far (the "
+            f"expert and the cognition know one pick-and-place); use --suite libero_spatial, or look at "
+            f"{env.suite} with `vlaprobe tasks` and `vlaprobe atoms`"
+        )
+
+
 def precheck(cfg: object) -> None:
-    """Checks the CLI runs before a command whose own function has none up front (``atoms``, ``tasks``)."""
+    """Checks the CLI runs before a command whose own function has none up front (``atoms``, ``tasks``), and the
+    suite of the commands that step episodes."""
     if isinstance(cfg, AtomsConfig):
         check_atoms(cfg)
     elif isinstance(cfg, TasksConfig):
         check_env(cfg.env)
+    elif isinstance(cfg, CollectConfig | ServeConfig):
+        check_episode_suite(cfg.env, "collect" if isinstance(cfg, CollectConfig) else "serve")
+    elif isinstance(cfg, RunConfig):
+        check_episode_suite(cfg.collect.env, "run")

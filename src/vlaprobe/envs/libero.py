@@ -14,9 +14,10 @@ from typing import Any
 
 import numpy as np
 
-from vlaprobe.configs.env import EnvConfig
+from vlaprobe.configs.env import EnvConfig, SuiteName
 from vlaprobe.envs.base import Observation
-from vlaprobe.envs.libero_world import CAMERA, SceneIndex, read_goal, read_scene
+from vlaprobe.envs.bddl_scene import pick_place_goal, scene_from_problem, task_bddl
+from vlaprobe.envs.libero_world import CAMERA, SceneIndex
 from vlaprobe.envs.placements import (
     MAX_DRAWS,
     SAMPLED_INITS,
@@ -34,13 +35,13 @@ from vlaprobe.envs.placements import (
 from vlaprobe.envs.referents import parse_reference, placement_problems, reference_problems
 from vlaprobe.envs.setup import _quiet_import_robosuite, prepare_libero
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.symbols import Labeler, WorldState
+from vlaprobe.symbols import Goal, Labeler, WorldState
 
 NOOP_ACTION = np.array([0, 0, 0, 0, 0, 0, -1], dtype=np.float64)  # gripper open
 
 
 @lru_cache(maxsize=4)
-def _benchmark(suite: str) -> Any:
+def _benchmark(suite: SuiteName) -> Any:
     prepare_libero(need_assets=False)  # task lists come from LIBERO's own files, not from the assets
     import contextlib
     import io
@@ -54,18 +55,18 @@ def _benchmark(suite: str) -> Any:
         return suites[suite]()
 
 
-def suite_tasks(suite: str = "libero_spatial") -> list[tuple[int, str]]:
+def suite_tasks(suite: SuiteName = "libero_spatial") -> list[tuple[int, str]]:
     """(index, instruction) of every task of a suite; no simulator is built."""
     bench = _benchmark(suite)
     return [(i, bench.get_task(i).language) for i in range(bench.get_num_tasks())]
 
 
-def num_init_states(suite: str, task: int) -> int:
+def num_init_states(suite: SuiteName, task: int) -> int:
     """How many fixed init states a task has (read from LIBERO's init-state file: no simulator)."""
     return len(_benchmark(suite).get_task_init_states(task))
 
 
-def resolve_task(task: int | str, suite: str = "libero_spatial") -> int:
+def resolve_task(task: int | str, suite: SuiteName = "libero_spatial") -> int:
     """A task index from an index or an exact instruction (case-insensitive)."""
     tasks = suite_tasks(suite)
     if isinstance(task, str) and task.strip().lstrip("-").isdigit():
@@ -82,7 +83,7 @@ def resolve_task(task: int | str, suite: str = "libero_spatial") -> int:
     raise VlaprobeError(f"no {suite} task has the instruction {task!r}; list them with `vlaprobe tasks`")
 
 
-def task_problem(task: int, suite: str = "libero_spatial") -> dict[str, Any]:
+def task_problem(task: int, suite: SuiteName = "libero_spatial") -> dict[str, Any]:
     """LIBERO's parsed BDDL problem of one task (regions, objects, ``initial_state``); no simulator is built."""
     spec = _benchmark(suite).get_task(task)
     _quiet_import_robosuite()  # LIBERO's BDDL parser imports robosuite, which prints start-up advice
@@ -99,7 +100,8 @@ class LiberoTaskEnv:
 
     def __init__(self, task: int | str, cfg: EnvConfig | None = None) -> None:
         self.cfg = cfg or EnvConfig()
-        prepare_libero(self.cfg.assets)
+        assets = prepare_libero(self.cfg.assets, suite=self.cfg.suite)  # the suite's files, before any work
+        assert assets is not None  # prepare_libero finds or refuses the assets folder
         from libero.libero import get_libero_path
         from libero.libero.envs import OffScreenRenderEnv
 
@@ -125,9 +127,14 @@ class LiberoTaskEnv:
             hard_reset=False,  # hard resets rebuild the simulation (1-3 s) and invalidate handles
         )
         self._sim_env = self._env.env
-        self.scene = read_scene(self._sim_env)
-        self.goal = read_goal(self._sim_env)
-        self.labeler = Labeler(self.scene, self.goal)
+        problem = task_bddl(self.cfg.suite, self.task_index)
+        self.scene = scene_from_problem(problem, assets)
+        self.goal_conjunction = problem.goal
+        """The task's BDDL goal, every conjunct (On, In, Open, Close, TurnOn, TurnOff)."""
+        pick_place = pick_place_goal(problem.goal, self.scene)
+        if pick_place is not None:  # absent otherwise: collection, the expert and the cognition need one
+            self.goal: Goal = pick_place
+        self.labeler = Labeler(self.scene, pick_place)
         self._index = SceneIndex(self._sim_env, self.scene)
         self._reference = None
         if self.cfg.inits == "sampled-swap":

@@ -1,9 +1,8 @@
-"""What a built LIBERO scene is and where it stands: the typed scene and goal, read once, and world-state snapshots.
+"""Where a built LIBERO scene stands: world-state snapshots.
 
-:func:`read_scene` and :func:`read_goal` read the task's BDDL problem and the built scene (which objects are
-pickupable, which fixture regions are drawers, which fixtures switch on), not a hand-typed list, so other LIBERO
-suites need no new detectors. :class:`SceneIndex` maps the simulator's geoms, sites and joints to the scene's
-rows once, then snapshots the simulator into the :class:`~vlaprobe.symbols.WorldState` every detector reads.
+The typed scene and goal are read from the task's BDDL file (:mod:`vlaprobe.envs.bddl_scene`), not from the
+simulator. :class:`SceneIndex` maps the simulator's geoms, sites and joints to the scene's rows once, then
+snapshots the simulator into the :class:`~vlaprobe.symbols.WorldState` every detector reads.
 """
 
 from __future__ import annotations
@@ -12,70 +11,41 @@ from typing import Any
 
 import numpy as np
 
-from vlaprobe.errors import VlaprobeError
-from vlaprobe.symbols import Articulation, Goal, Scene, WorldState
+from vlaprobe.symbols import Scene, WorldState
 from vlaprobe.symbols.world import FINGER_GAP_MAX
 
 CAMERA = "agentview"
 
 
-def articulation(props: dict[str, Any], key: str) -> Articulation:
-    """LIBERO's open/turn-on rule from an articulated object's declared ranges."""
-    art = props.get("articulation", {})
-    if key == "open":
-        open_r, close_r = art.get("default_open_ranges", []), art.get("default_close_ranges", [])
-        if not open_r:
-            raise VlaprobeError(
-                "a container's fixture declares no open range; this LIBERO object is not supported"
-            )
-        # Cabinets open as the joint goes negative (open range below the closed one), microwaves the other way.
-        if close_r and max(open_r) <= min(close_r):
-            return Articulation(threshold=float(max(open_r)), below=True)
-        return Articulation(threshold=float(min(open_r)), below=False)
-    on_r = art.get("default_turnon_ranges", [])
-    return Articulation(threshold=float(min(on_r)), below=False)
+def workspace_geoms(e: Any) -> tuple[list[int], float]:
+    """The collision geoms of the workspace body (the floor, the study or living-room table: the body named by
+    LIBERO's ``workspace_name``) and the height of their top: the floor plane's height, else the highest top of
+    the geoms' world boxes. (0.0 when the scene has none.)"""
+    import mujoco
 
-
-def read_scene(e: Any) -> Scene:
-    """The typed scene of a built LIBERO environment, from its BDDL problem and its object sites."""
-    problem = e.parsed_problem
-    pickupable = tuple(n for names in problem["objects"].values() for n in names)
-    fixtures = tuple(n for kind, names in problem["fixtures"].items() if kind != "table" for n in names)
-    containers: list[str] = []
-    arts: list[Articulation] = []
-    surfaces: list[str] = []
-    parents: dict[str, str] = {}
-    for name, site in e.object_sites_dict.items():
-        parent = getattr(site, "parent_name", None)
-        if not isinstance(parent, str) or parent not in fixtures:
-            continue  # table zones are placement aids, not objects
-        parents[name] = parent
-        if site.joints:
-            containers.append(name)
-            arts.append(articulation(e.get_object(parent).object_properties, "open"))
-        else:
-            surfaces.append(name)
-    on_off = tuple(f for f in fixtures if hasattr(e.get_object(f), "turn_on"))
-    return Scene(
-        pickupable=pickupable,
-        fixtures=fixtures,
-        containers=tuple(containers),
-        container_articulation=tuple(arts),
-        surfaces=tuple(surfaces),
-        on_off=on_off,
-        on_off_articulation=tuple(articulation(e.get_object(k).object_properties, "on") for k in on_off),
-        region_parent=parents,
-    )
-
-
-def read_goal(e: Any) -> Goal:
-    """The task's goal, a single On(pick, place)."""
-    goal = e.parsed_problem["goal_state"]
-    if len(goal) != 1 or goal[0][0].lower() != "on":
-        raise VlaprobeError(
-            f"task goal {goal} is not a single On(a, b); only pick-and-place goals are supported"
-        )
-    return Goal(pick=goal[0][1], place=goal[0][2])
+    model = e.sim.model
+    raw = model._model
+    root = model.body_name2id(e.workspace_name) if e.workspace_name in model.body_names else -1
+    geoms = [
+        g
+        for g in range(model.ngeom)
+        if root >= 0
+        and model.body_rootid[model.geom_bodyid[g]] == root
+        and (model.geom_contype[g] or model.geom_conaffinity[g])
+    ]
+    if not geoms:
+        return [], 0.0
+    data = e.sim.data
+    tops = []
+    for g in geoms:
+        if raw.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE:
+            tops.append(float(data.geom_xpos[g][2]))
+            continue
+        aabb = raw.geom_aabb[g]
+        rot = np.asarray(data.geom_xmat[g]).reshape(3, 3)
+        centre = np.asarray(data.geom_xpos[g]) + rot @ aabb[:3]
+        tops.append(float(centre[2] + np.abs(rot)[2] @ aabb[3:]))
+    return geoms, max(tops)
 
 
 class SceneIndex:
@@ -92,10 +62,11 @@ class SceneIndex:
             for g in e.get_object(name).contact_geoms:
                 owner[model.geom_name2id(g)] = i
         table = [g for g in range(model.ngeom) if (model.geom_id2name(g) or "") == "table_collision"]
+        if table:  # the tabletop and kitchen scenes: the table's collision box
+            self.table_height = float(e.sim.data.geom_xpos[table[0]][2] + model.geom_size[table[0]][2])
+        else:
+            table, self.table_height = workspace_geoms(e)
         owner[table] = n
-        self.table_height = (
-            float(e.sim.data.geom_xpos[table[0]][2] + model.geom_size[table[0]][2]) if table else 0.0
-        )
         fingers = e.robots[0].gripper.important_geoms
         for offset, key in ((1, "left_finger"), (2, "right_finger")):
             for g in fingers[key]:
@@ -126,7 +97,9 @@ class SceneIndex:
             return int(model.get_joint_qpos_addr(joint))
 
         self._container_qpos = np.array(
-            [qpos_addr(e.object_sites_dict[c].joints[0]) for c in scene.containers], dtype=np.int64
+            [qpos_addr(e.object_sites_dict[c].joints[0]) for c in scene.containers]
+            + [qpos_addr(e.get_object(d).joints[0]) for d in scene.doors],
+            dtype=np.int64,
         )
         self._on_off_qpos = np.array(
             [qpos_addr(e.get_object(k).joints[0]) for k in scene.on_off], dtype=np.int64

@@ -20,12 +20,13 @@ import os
 from pathlib import Path
 from types import ModuleType
 
+from vlaprobe.configs.env import SuiteName
 from vlaprobe.envs.assets import ASSETS_ENV, check_assets
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import write_atomic
 
 _prepared_assets: Path | None = None
-_checked_assets: set[Path] = set()
+_checked_assets: set[tuple[Path, str]] = set()
 
 
 def _choose_gl_backend() -> None:
@@ -97,16 +98,20 @@ def _quiet_import_robosuite() -> None:
     logging.getLogger("robosuite_logs").setLevel(logging.ERROR)
 
 
-def _checked(folder: Path) -> Path:
-    """``folder`` after :func:`~vlaprobe.envs.assets.check_assets` (once per folder and process)."""
-    if folder not in _checked_assets:
-        check_assets(folder)
-        _checked_assets.add(folder)
+def _checked(folder: Path, suite: SuiteName) -> Path:
+    """``folder`` after :func:`~vlaprobe.envs.assets.check_assets` of ``suite``'s files (once per folder, suite
+    and process)."""
+    if (folder, suite) not in _checked_assets:
+        from vlaprobe.envs.suite_assets import asset_files
+
+        check_assets(folder, asset_files(suite), suite)
+        _checked_assets.add((folder, suite))
     return folder
 
 
-def resolve_assets(assets: str | Path | None) -> Path | None:
-    """The assets folder to use, checked: the argument, else ``$VLAPROBE_LIBERO_ASSETS``, else None (LIBERO's own)."""
+def resolve_assets(assets: str | Path | None, suite: SuiteName = "libero_spatial") -> Path | None:
+    """The assets folder to use, checked for ``suite``'s files: the argument, else ``$VLAPROBE_LIBERO_ASSETS``, else
+    None (LIBERO's own)."""
     if assets is not None:
         chosen, source = str(assets), "--env.assets"
     elif ASSETS_ENV in os.environ:
@@ -123,10 +128,10 @@ def resolve_assets(assets: str | Path | None) -> Path | None:
         raise VlaprobeError(
             f"LIBERO assets folder {folder} {what}; set {ASSETS_ENV} (or --env.assets) to LIBERO's assets folder"
         )
-    return _checked(folder)
+    return _checked(folder, suite)
 
 
-def _libero_own_assets(libero_root: ModuleType) -> Path:
+def _libero_own_assets(libero_root: ModuleType, suite: SuiteName) -> Path:
     """LIBERO's own assets: inside the libero package, else downloaded from the Hugging Face Hub (its chatter,
     on stdout and stderr, is kept out of the terminal: stdout must stay clean for --json output)."""
     import contextlib
@@ -147,11 +152,14 @@ def _libero_own_assets(libero_root: ModuleType) -> Path:
             f"LIBERO assets not found (the libero package has none and the download failed); "
             f"set {ASSETS_ENV} (or --env.assets) to a folder holding LIBERO's assets"
         )
-    return _checked(found.resolve())
+    return _checked(found.resolve(), suite)
 
 
-def prepare_libero(assets: str | Path | None = None, *, need_assets: bool = True) -> Path | None:
-    """Set up rendering, LIBERO's config and assets; returns the assets folder in use (None: not needed).
+def prepare_libero(
+    assets: str | Path | None = None, *, need_assets: bool = True, suite: SuiteName = "libero_spatial"
+) -> Path | None:
+    """Set up rendering, LIBERO's config and assets (checked for ``suite``'s files); returns the assets folder in
+    use (None: not needed).
 
     ``need_assets=False`` (listing a suite's tasks) makes LIBERO importable without looking for assets.
     """
@@ -160,15 +168,15 @@ def prepare_libero(assets: str | Path | None = None, *, need_assets: bool = True
     _write_libero_config()
     if not need_assets:
         return None
-    folder = resolve_assets(assets)
+    folder = resolve_assets(assets, suite)
     _quiet_import_robosuite()
     import libero.libero as libero_root  # safe now: the config exists
 
     if folder is not None:
         libero_root._assets_path_cache = str(folder)
     elif _prepared_assets is None:
-        folder = _libero_own_assets(libero_root)
+        folder = _libero_own_assets(libero_root, suite)
     else:
-        folder = _prepared_assets
+        folder = _checked(_prepared_assets, suite)
     _prepared_assets = folder
     return folder

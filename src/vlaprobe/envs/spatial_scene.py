@@ -1,7 +1,8 @@
-"""The scene all 10 LIBERO-spatial tasks share, as :class:`~vlaprobe.envs.libero.LiberoTaskEnv` reads it from
-the simulator, for code that needs the vocabulary without one (benchmarks, tests, clients).
+"""The scene all 10 LIBERO-spatial tasks share, as :func:`~vlaprobe.envs.bddl_scene.task_scene` reads it from
+their BDDL files, for code that needs the vocabulary without LIBERO (benchmarks, tests, clients).
 
-A LIBERO-marked test checks it against every task's simulator, so it cannot drift from what collection records.
+``tests/envs/test_bddl_scene.py`` pins it equal to every task's BDDL-derived scene, and a LIBERO-marked test
+checks it against every task's simulator, so it cannot drift from what collection records.
 """
 
 from __future__ import annotations
@@ -29,6 +30,8 @@ SPATIAL_SCENE = Scene(
         "wooden_cabinet_1_top_side": "wooden_cabinet_1",
         "flat_stove_1_cook_region": "flat_stove_1",
     },
+    close_articulation=(Articulation(threshold=0.0, below=False, strict=True),) * 3,
+    off_articulation=(Articulation(threshold=0.0, below=True, strict=True),),
 )
 """Tabletop objects, drawers, stove and their articulation thresholds (224 object + 12 action atoms)."""
 

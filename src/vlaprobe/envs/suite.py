@@ -22,17 +22,22 @@ def tasks(cfg: TasksConfig) -> int:
 
 
 def read_atoms(cfg: AtomsConfig) -> dict[str, object]:
-    """Build the task, reset to the settled init state and evaluate every atom."""
+    """Build the task, reset to the settled init state and evaluate every defined atom (atoms without a
+    definition for the task's goal are listed under "undefined", not given a value)."""
     env = make_env(cfg.task, cfg.env)
     try:
         env.reset(cfg.init)
         obj, act = env.labeler.as_dict(env.world_state())
+        undefined = env.labeler.undefined_action_atoms
         return {
+            "suite": cfg.env.suite,
             "task": env.task_index,
             "init": cfg.init,
             "instruction": env.instruction,
+            "goal": str(getattr(env, "goal_conjunction", "")),
             "object": obj,
-            "action": act,
+            "action": {k: v for k, v in act.items() if k not in undefined},
+            "undefined": list(undefined),
         }
     finally:
         env.close()
@@ -45,10 +50,16 @@ def atoms(cfg: AtomsConfig) -> int:
         print(json.dumps(result))
         return 0
     print(f"task {result['task']} init {result['init']}: {result['instruction']}")
+    print(f"goal: {result['goal']}")
     for head in HEADS:
         values: dict[str, int] = result[head]  # type: ignore[assignment]
         shown = values if cfg.all else {k: v for k, v in values.items() if v}
         print(f"{head} state ({sum(values.values())} of {len(values)} atoms true):")
         for name, value in shown.items():
             print(f"  {name}" if not cfg.all else f"  {value} {name}")
+    undefined: list[str] = result["undefined"]  # type: ignore[assignment]
+    if undefined:
+        print(
+            f"undefined for this goal ({len(undefined)} atoms: should-move-towards follows pick-and-place goals only)"
+        )
     return 0

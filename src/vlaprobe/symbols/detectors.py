@@ -25,11 +25,13 @@ of its collision-geom bounding box.
   this, an object resting on a fixture's top is never ``on`` it (the fixture's origin sits at its base).
 - ``on-table(a)``: ``a`` touches the table top and is not held (``grasped``). A fixture (cabinet, stove) is
   welded to the world, so MuJoCo computes no contacts for it: it is on the table when the bottom of its box is
-  within ``FIXTURE_TABLE_GAP`` = 2 cm of the table top.
-- ``inside(a,c)``: LIBERO's own ``In``: ``a``'s body origin lies in the drawer site's box (half extents rotated
-  into the world, 1 cm of slack below).
-- ``open(c)``, ``turned-on(k)``: LIBERO's thresholds on the joint: a wooden-cabinet drawer is open below
-  -0.14 (``default_open_ranges``), the flat stove is on at 0.5 or more (``default_turnon_ranges``).
+  within ``FIXTURE_TABLE_GAP`` = 3 cm of the table top (LIBERO-90's two-layer shelf and the microwave stand on
+  collision boxes that start 2.0 cm above it; LIBERO-spatial's cabinet and stove within 1.5 cm).
+- ``inside(a,c)``: LIBERO's own ``In``: ``a``'s body origin lies in the drawer's (or receptacle's: basket,
+  microwave, caddy compartment) site box (half extents rotated into the world, 1 cm of slack below).
+- ``open(c)``, ``turned-on(k)``: LIBERO's thresholds on the joint (a door's, the microwave's, on its hinge): a
+  wooden-cabinet drawer is open below -0.14 (``default_open_ranges``), the flat stove is on at 0.5 or more
+  (``default_turnon_ranges``), the microwave open below -1.3.
 - ``grasped(a)``: the physical grasp, not the gripper command. A finger *touches* ``a`` when MuJoCo reports a
   contact between one of its collision geoms (pad included) and ``a``'s. A grasp **starts** when both fingers
   touch ``a``. It **lasts** while at least one finger still touches it: robosuite's two-pad check flickers
@@ -69,7 +71,7 @@ DEPTH_MARGIN = 0.01
 ON_XY_RADIUS = 0.03  # LIBERO ObjectState.check_ontop
 SURFACE_BELOW, SURFACE_ABOVE = 0.005, 0.10  # LIBERO SiteObject.under
 INSIDE_SLACK_BELOW = 0.01  # LIBERO SiteObject.in_box
-FIXTURE_TABLE_GAP = 0.02
+FIXTURE_TABLE_GAP = 0.03
 GRIP_MIN_OPENING = 0.002  # m between the fingers: below, they are shut on nothing
 FINGER_SPEED = 0.005  # m/s: opening faster, the fingers let go; closing faster, they chase a slipping object
 SLIP_GAP = 0.001  # m: a finger this close to a slipping held object still holds it
@@ -149,13 +151,16 @@ def on_matrix(scene: Scene, state: WorldState) -> np.ndarray:
 
 
 def inside_matrix(scene: Scene, state: WorldState) -> np.ndarray:
-    """(P, C) matrix: inside(a, c), LIBERO's ``In`` for drawer sites."""
+    """(P, H) matrix: inside(a, h), LIBERO's ``In`` (the origin in the site's box) for each of ``scene.holders``
+    (drawer sites, then receptacle sites)."""
     n_pick, n_cont = len(scene.pickupable), len(scene.containers)
-    if n_cont == 0:
+    start = n_cont + len(scene.surfaces)
+    rows = np.r_[0:n_cont, start : start + len(scene.receptacles)].astype(int)
+    if len(rows) == 0:
         return np.zeros((n_pick, 0), dtype=bool)
-    half = np.abs(np.einsum("cij,cj->ci", state.region_mat[:n_cont], state.region_size[:n_cont]))
-    lo = state.region_pos[:n_cont] - half
-    hi = state.region_pos[:n_cont] + half
+    half = np.abs(np.einsum("cij,cj->ci", state.region_mat[rows], state.region_size[rows]))
+    lo = state.region_pos[rows] - half
+    hi = state.region_pos[rows] + half
     lo[:, 2] -= INSIDE_SLACK_BELOW
     p = state.pos[:n_pick, None, :]
     return np.all((p > lo[None]) & (p < hi[None]), axis=-1)
@@ -205,7 +210,9 @@ class Labeler:
     stored world states with a fresh (or reset) labeler gives the labels recorded with them.
     """
 
-    def __init__(self, scene: Scene, goal: Goal) -> None:
+    def __init__(self, scene: Scene, goal: Goal | None) -> None:
+        """``goal`` None: the task's goal is not one pick-and-place (LIBERO-goal's ``Open``, LIBERO-10's
+        conjunctions); ``should-move-towards`` is then undefined (:attr:`undefined_action_atoms`, all 0)."""
         self.scene = scene
         self.goal = goal
         self.vocabulary: Vocabulary = build_vocabulary(scene)
@@ -213,13 +220,20 @@ class Labeler:
         self._offdiag = ~np.eye(n, dtype=bool)
         pick_index = {a: i for i, a in enumerate(scene.pickupable)}
         table_index = {a: i for i, a in enumerate(scene.tabletop)}
-        if goal.pick not in pick_index or goal.place not in table_index:
+        if goal is not None and (goal.pick not in pick_index or goal.place not in table_index):
             raise ValueError(f"goal {goal} does not name objects of the scene")
-        self._pick = pick_index[goal.pick]
-        self._place = table_index[goal.place]
+        self._pick = pick_index[goal.pick] if goal is not None else -1
+        self._place = table_index[goal.place] if goal is not None else -1
+        towards = [a for a in self.vocabulary.action_atoms if a.startswith("should-move-towards(")]
+        self.undefined_action_atoms: tuple[str, ...] = tuple(towards) if goal is None else ()
+        """Action atoms without a definition for this goal (never to be scored as false)."""
         n_pick = len(scene.pickupable)
         self._on_mask = np.ones((n_pick, n), dtype=bool)
         self._on_mask[np.arange(n_pick), np.arange(n_pick)] = False
+        holders = scene.holders
+        self._inside_mask = np.array(
+            [[scene.region_parent.get(c) != a for c in holders] for a in scene.pickupable], dtype=bool
+        ).reshape(n_pick, len(holders))
         self.reset()
 
     def reset(self) -> None:
@@ -245,9 +259,14 @@ class Labeler:
         n_pick = len(scene.pickupable)
         on_table[n_pick:] |= np.abs(state.aabb_lo[n_pick:, 2] - state.table_height) < FIXTURE_TABLE_GAP
         on_table &= ~held
-        inside = inside_matrix(scene, state)
+        inside = inside_matrix(scene, state)[self._inside_mask]
         is_open = np.array(
-            [a.is_active(q) for a, q in zip(scene.container_articulation, state.container_qpos, strict=True)],
+            [
+                a.is_active(q)
+                for a, q in zip(
+                    scene.container_articulation + scene.door_articulation, state.container_qpos, strict=True
+                )
+            ],
             dtype=bool,
         )
         turned_on = np.array(
@@ -262,12 +281,14 @@ class Labeler:
                 rel["right-of"][self._offdiag],
                 on[self._on_mask],
                 on_table,
-                inside.reshape(-1),
+                inside,
                 is_open,
                 turned_on,
             ]
         )
         towards = np.zeros(n, dtype=bool)
+        if self.goal is None:
+            return obj, np.concatenate([grasped, towards])
         placed = bool(on[self._pick, self._place])
         if grasped[self._pick]:
             self._placing, self._landed, self._on_steps = True, False, 0

@@ -8,8 +8,9 @@ object state
      distinct tabletop objects, ``a`` major, both in ``Scene.tabletop`` order;
   5. ``on(a,b)``: ``a`` pickupable, ``b`` any other tabletop object;
   6. ``on-table(a)``: tabletop objects;
-  7. ``inside(a,c)``: ``a`` pickupable, ``c`` container (drawer);
-  8. ``open(c)``: containers;
+  7. ``inside(a,c)``: ``a`` pickupable, ``c`` container (drawer) or receptacle (basket, microwave, caddy...):
+     ``Scene.holders``, except an object's own region (``inside_pairs``);
+  8. ``open(c)``: containers, then doors (the microwave): ``Scene.openable``;
   9. ``turned-on(k)``: on-off objects.
 action state
   10. ``grasped(a)``: pickupable objects;
@@ -76,6 +77,12 @@ class Vocabulary:
         raise ValueError(f"unknown head {head!r}; expected one of {HEADS}")
 
 
+def inside_pairs(scene: Scene) -> list[tuple[str, str]]:
+    """(object, holder) pairs of ``inside``, ``a`` major: every pickupable and holder but an object's own region
+    (a basket is never inside its own contain region)."""
+    return [(a, c) for a in scene.pickupable for c in scene.holders if scene.region_parent.get(c) != a]
+
+
 def build_vocabulary(scene: Scene) -> Vocabulary:
     """Enumerate every atom of ``scene`` from its typed objects."""
     tabletop, pick = scene.tabletop, scene.pickupable
@@ -85,8 +92,8 @@ def build_vocabulary(scene: Scene) -> Vocabulary:
         objects += [atom(pred, a, b) for a, b in pairs]
     objects += [atom("on", a, b) for a in pick for b in tabletop if a != b]
     objects += [atom("on-table", a) for a in tabletop]
-    objects += [atom("inside", a, c) for a in pick for c in scene.containers]
-    objects += [atom("open", c) for c in scene.containers]
+    objects += [atom("inside", a, c) for a, c in inside_pairs(scene)]
+    objects += [atom("open", c) for c in scene.openable]
     objects += [atom("turned-on", k) for k in scene.on_off]
     actions = [atom("grasped", a) for a in pick] + [atom("should-move-towards", a) for a in tabletop]
     return Vocabulary(scene=scene, object_atoms=tuple(objects), action_atoms=tuple(actions))

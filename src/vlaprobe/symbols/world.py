@@ -20,24 +20,33 @@ EXTRA_CONTACT_BODIES: tuple[str, ...] = (TABLE, LEFT_FINGER, RIGHT_FINGER)
 
 @dataclass(frozen=True)
 class Articulation:
-    """When a joint counts as open / on, in LIBERO's own terms.
+    """When a joint counts as open / closed / on / off, in LIBERO's own terms.
 
-    ``open`` is true when ``qpos < threshold`` if ``below`` else when ``qpos >= threshold`` (LIBERO's cabinets open
-    as their drawer joint goes below -0.14; its stove is on when the knob joint reaches 0.5).
+    Active when ``qpos < threshold`` if ``below`` else when ``qpos > threshold``, or equal to it too unless
+    ``strict``. LIBERO's cabinets open as their drawer joint goes below -0.14 (strictly); its stove is on when the
+    knob joint reaches 0.5 (0.5 included); its cabinets are closed above 0.0 (strictly). ``strict`` defaults to
+    ``below`` (the two rules LIBERO-spatial has).
     """
 
     threshold: float
     below: bool
+    strict: bool | None = None
+
+    def __post_init__(self) -> None:
+        if self.strict is None:
+            object.__setattr__(self, "strict", self.below)
 
     def is_active(self, qpos: np.ndarray) -> np.ndarray:
-        return qpos < self.threshold if self.below else qpos >= self.threshold
+        if self.below:
+            return qpos < self.threshold if self.strict else qpos <= self.threshold
+        return qpos > self.threshold if self.strict else qpos >= self.threshold
 
 
 @dataclass(frozen=True)
 class Scene:
-    """The typed objects of a task, taken from its BDDL problem and the built scene.
+    """The typed objects of a task, read from its BDDL problem (``vlaprobe.envs.bddl_scene``).
 
-    LIBERO-spatial: 5 pickupable objects, 2 fixtures (cabinet, stove), 3 drawers, 1 on-off object.
+    LIBERO-spatial: 5 pickupable objects, 2 fixtures (cabinet, stove), 3 drawers, 2 surfaces, 1 on-off object.
     """
 
     pickupable: tuple[str, ...]
@@ -55,7 +64,19 @@ class Scene:
     on_off_articulation: tuple[Articulation, ...] = ()
     """Turn-on rule of each on-off fixture, same order."""
     region_parent: dict[str, str] = field(default_factory=dict)
-    """Fixture each container/surface region belongs to."""
+    """Object each container/surface/receptacle region belongs to."""
+    receptacles: tuple[str, ...] = ()
+    """Regions without a joint that objects go ``In`` (a basket's contain region, a microwave's heating region, a
+    desk caddy's compartments, a shelf's layers), in BDDL order. None in LIBERO-spatial."""
+    doors: tuple[str, ...] = ()
+    """Fixtures whose own joint opens (the microwave's door), not one of their regions. None in LIBERO-spatial."""
+    door_articulation: tuple[Articulation, ...] = ()
+    """Open rule of each door, same order."""
+    close_articulation: tuple[Articulation, ...] = ()
+    """LIBERO's ``Close`` rule of each container then each door (not the negation of open: a drawer half out is
+    neither); empty in scenes stored before issue #35."""
+    off_articulation: tuple[Articulation, ...] = ()
+    """LIBERO's ``TurnOff`` rule of each on-off fixture, same order; empty in scenes stored before issue #35."""
 
     @property
     def tabletop(self) -> tuple[str, ...]:
@@ -64,8 +85,18 @@ class Scene:
 
     @property
     def regions(self) -> tuple[str, ...]:
-        """All fixture regions whose poses a world state carries: containers then surfaces."""
-        return self.containers + self.surfaces
+        """All regions whose poses a world state carries: containers, surfaces, then receptacles."""
+        return self.containers + self.surfaces + self.receptacles
+
+    @property
+    def openable(self) -> tuple[str, ...]:
+        """What ``open`` ranges over: containers (drawers) then doors; ``WorldState.container_qpos`` follows."""
+        return self.containers + self.doors
+
+    @property
+    def holders(self) -> tuple[str, ...]:
+        """What ``inside`` ranges over: containers then receptacles."""
+        return self.containers + self.receptacles
 
 
 @dataclass(frozen=True)
@@ -99,7 +130,7 @@ class WorldState:
     region_size: np.ndarray
     """(R, 3) site half sizes (MuJoCo box size)."""
     container_qpos: np.ndarray
-    """(C,) joint position of each container's joint."""
+    """(C + D,) joint position of each container's joint, then of each door's (``Scene.openable``)."""
     on_off_qpos: np.ndarray
     """(K,) joint position of each on-off fixture's joint."""
     camera_pos: np.ndarray
