@@ -22,6 +22,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from tests.generated import doc_with
 
 from vlaprobe.cognition import Cognition, CognitionConfig, RuleEngine
 from vlaprobe.envs.spatial_scene import SPATIAL_GOAL, SPATIAL_SCENE
@@ -147,15 +148,9 @@ def table() -> str:
     return "\n".join(lines)
 
 
-def doc_with(text: str, doc: str) -> str:
-    pattern = re.compile(re.escape(BEGIN) + ".*?" + re.escape(END), re.S)
-    assert pattern.search(doc), f"{DOC} has no generated vacuity table ({BEGIN})"
-    return pattern.sub(lambda _: f"{BEGIN}\n{text}\n{END}", doc)
-
-
 def test_the_vacuity_table_in_the_docs_is_the_generated_one() -> None:
     doc = DOC.read_text()
-    assert doc_with(table(), doc) == doc, (
+    assert doc_with(table(), doc, BEGIN, END, DOC) == doc, (
         "docs/cognition.md is stale: run python -m tests.cognition.test_vacuity"
     )
 
@@ -169,5 +164,5 @@ def test_converse_rules_cannot_fire_on_probes_and_the_labeller_enforces_two_rule
 
 
 if __name__ == "__main__":
-    DOC.write_text(doc_with(table(), DOC.read_text()))
+    DOC.write_text(doc_with(table(), DOC.read_text(), BEGIN, END, DOC))
     print(f"vacuity table written to {DOC}", file=sys.stderr)

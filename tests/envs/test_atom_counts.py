@@ -7,11 +7,11 @@ rewrites it; without the variable the test fails when the committed table differ
 from __future__ import annotations
 
 import os
-import re
 import sys
 from pathlib import Path
 
 import pytest
+from tests.generated import doc_with
 
 from vlaprobe.configs.env import SUITES
 from vlaprobe.envs.suite_vocabulary import suite_vocabulary
@@ -57,15 +57,9 @@ def table() -> str:
     return "\n".join(lines)
 
 
-def doc_with(text: str, doc: str) -> str:
-    pattern = re.compile(re.escape(BEGIN) + ".*?" + re.escape(END), re.S)
-    assert pattern.search(doc), f"{DOC} has no generated atom-count table ({BEGIN})"
-    return pattern.sub(lambda _: f"{BEGIN}\n{text}\n{END}", doc)
-
-
 def test_the_atom_count_table_in_the_docs_is_the_generated_one() -> None:
     doc = DOC.read_text()
-    expected = doc_with(table(), doc)
+    expected = doc_with(table(), doc, BEGIN, END, DOC)
     if os.environ.get("VLAPROBE_WRITE_DOCS") == "1" and expected != doc:
         DOC.write_text(expected)
         doc = expected
@@ -79,5 +73,5 @@ def test_spatial_row_is_the_papers() -> None:
 
 
 if __name__ == "__main__":
-    DOC.write_text(doc_with(table(), DOC.read_text()))
+    DOC.write_text(doc_with(table(), DOC.read_text(), BEGIN, END, DOC))
     print(f"atom counts written to {DOC}", file=sys.stderr)
