@@ -28,7 +28,8 @@ from vlaprobe.probes.regularization import ColumnGroups, CrossValidation, choose
 
 @dataclass
 class LinearProbes:
-    """Per-layer linear probes: ``logit = ((x - mean) / std) @ weight[layer] + bias[layer]``."""
+    """Per-layer linear probes: ``logit = ((x - mean) / std) @ weight[layer] + bias[layer]``, every tensor on the
+    CPU whatever device fit them."""
 
     weight: torch.Tensor
     """(layers, hidden, atoms) float32."""
@@ -132,4 +133,6 @@ def fit_probes(
         history=cfg.history,
         memory_mb=cfg.memory_mb,
     )
+    if mean is not None and std is not None:  # on the CPU, as fit_logistic returns the weights
+        mean, std = mean.cpu(), std.cpu()
     return LinearProbes(weight=w, bias=b, mean=mean, std=std, c=per_column, convergence=conv, cv=cv)

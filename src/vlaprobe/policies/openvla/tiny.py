@@ -61,24 +61,31 @@ def tiny_config(hidden_size: int = TINY_HIDDEN_SIZE, patch_size: int = 14) -> Op
     )
 
 
-def tiny_state_dict(cfg: OpenVLAConfig, seed: int) -> dict[str, torch.Tensor]:
-    """Deterministic float32 weights for ``cfg`` from ``seed`` (same on every machine and torch build).
+def tiny_state_dict(
+    cfg: OpenVLAConfig,
+    seed: int,
+    device: torch.device | str = "cpu",
+    dtype: torch.dtype = torch.float32,
+) -> dict[str, torch.Tensor]:
+    """Deterministic weights for ``cfg`` from ``seed`` (on the CPU: the same on every machine and torch build).
 
-    One CPU generator visits the parameters in sorted name order: norms 1 + 0.1·N, biases 0.1·N,
+    ``device``/``dtype``: draw on that device and store in that dtype (``bench/gpu.py`` draws OpenVLA-7B's
+    7.5 B random weights on the GPU in bf16; the CPU default is the float32 the tiny models are built from).
+    One generator visits the parameters in sorted name order: norms 1 + 0.1·N, biases 0.1·N,
     linear/conv weights N/√fan_in, token embeddings N, LayerScale U(0.3, 1), positional embeddings 0.5·N,
     CLS/register/latent tokens N; the lm_head rows of the 256 action ids are then scaled ×3 so greedy
     decoding over the full vocabulary lands on action tokens, as in a trained OpenVLA.
     """
     with torch.device("meta"):
         shapes = {k: tuple(v.shape) for k, v in OpenVLA(cfg).state_dict().items()}
-    gen = torch.Generator().manual_seed(seed)
+    gen = torch.Generator(device=device).manual_seed(seed)
     out: dict[str, torch.Tensor] = {}
     for name in sorted(shapes):
         shape = shapes[name]
-        normal = torch.randn(shape, generator=gen, dtype=torch.float32)
+        normal = torch.randn(shape, generator=gen, dtype=torch.float32, device=device)
         leaf = name.rsplit(".", 1)[-1]
         if leaf == "scale_factor":
-            value = 0.3 + 0.7 * torch.rand(shape, generator=gen, dtype=torch.float32)
+            value = 0.3 + 0.7 * torch.rand(shape, generator=gen, dtype=torch.float32, device=device)
         elif leaf == "pos_embed":
             value = 0.5 * normal
         elif leaf in ("cls_token", "reg_token", "latent") or name.endswith("embed_tokens.weight"):
@@ -89,6 +96,6 @@ def tiny_state_dict(cfg: OpenVLAConfig, seed: int) -> dict[str, torch.Tensor]:
             value = 1.0 + 0.1 * normal
         else:
             value = normal / math.sqrt(math.prod(shape[1:]))
-        out[name] = value
+        out[name] = value.to(dtype)
     out["language_model.lm_head.weight"][ACTION_ID_RANGE[0] : ACTION_ID_RANGE[1]] *= 3.0
     return out
