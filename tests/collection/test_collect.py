@@ -136,7 +136,7 @@ def test_incompatible_settings_are_refused_before_work(tmp_path: Path) -> None:
 
     with pytest.raises(VlaprobeError, match='driver is "expert" in the store but "policy"'):
         collect(dataclasses.replace(cfg, driver="policy"), no_worker)
-    with pytest.raises(VlaprobeError, match=r"env\.max_steps"):
+    with pytest.raises(VlaprobeError, match=r"--env\.max-steps is 6 in the store but 7 in this run"):
         collect(dataclasses.replace(cfg, env=EnvConfig(max_steps=7, image_size=16)), no_worker)
     with pytest.raises(VlaprobeError, match=r"--tasks \[5\] do not exist"):
         collect(dataclasses.replace(cfg, tasks=(5,)), make_fake_worker)
@@ -247,7 +247,7 @@ def test_dagger_store_keeps_the_experts_labels_and_its_beta(tmp_path: Path) -> N
         by_expert += int(np.all(action[acted] == expert[acted], axis=1).sum())
         by_model += int(np.all(action[acted] == predicted[acted], axis=1).sum())
     assert by_expert > 0 and by_model > 0  # beta 0.5: both acted
-    with pytest.raises(VlaprobeError, match=r"dagger_beta is 0\.5 in the store but 0\.2"):
+    with pytest.raises(VlaprobeError, match=r"--dagger-beta is 0\.5 in the store but 0\.2"):
         collect(dataclasses.replace(cfg, dagger_beta=0.2), make_fake_worker)
     with pytest.raises(VlaprobeError, match="--dagger-beta applies to --driver dagger only"):
         collect(config(tmp_path / "other", dagger_beta=0.5), make_fake_worker)

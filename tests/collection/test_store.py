@@ -181,7 +181,7 @@ def test_second_writer_is_refused(tmp_path: Path) -> None:
     path = tmp_path / "store"
     with (
         StoreWriter.open(path, make_meta()),
-        pytest.raises(VlaprobeError, match="being written by another process"),
+        pytest.raises(VlaprobeError, match=f"is being written by pid {os.getpid()}"),
     ):
         StoreWriter.open(path, make_meta())
     StoreWriter.open(path, make_meta()).close()  # released
@@ -193,7 +193,7 @@ def test_second_writer_is_refused(tmp_path: Path) -> None:
         ({"pooling": "mean"}, r"pooling is \"last_prompt\" in the store but \"mean\" in this run"),
         ({"driver": "policy"}, "driver is"),
         ({"model": {"name": "tiny", "layers": 6}}, "model.layers is 5 in the store but 6"),
-        ({"atom_names": {**ATOMS, "action": ["grasped(o1)", "grasped(o0)"]}}, r"atom_names.action\[0\]"),
+        ({"atom_names": {**ATOMS, "action": ["grasped(o1)", "grasped(o0)"]}}, r"atom vocabulary.action\[0\]"),
     ],
 )
 def test_incompatible_run_is_refused(tmp_path: Path, change: dict, message: str) -> None:
