@@ -186,7 +186,8 @@ def collect(cfg: CollectConfig, make_worker: MakeWorker = Worker) -> CollectResu
     check_output_folder(out)  # a file or an unwritable path fails here, not after the model has loaded
     resolve_assets(cfg.env.assets, cfg.env.suite)  # bad LIBERO assets fail before the model loads
     with lock_folder(out) as lock:
-        existed = out.is_dir() and any(out.iterdir())
+        was_folder = out.is_dir()
+        existed = was_folder and any(out.iterdir())
         if existed:  # fail fast, before any model is loaded
             check_compatible(out, read_meta(out, "choose a new or empty folder for --out"), _run_meta(cfg))
             require_intact(out)  # a damaged episode would otherwise block or poison the resume
@@ -194,16 +195,19 @@ def collect(cfg: CollectConfig, make_worker: MakeWorker = Worker) -> CollectResu
             result = _collect(cfg, make_worker, lock)
         except BaseException:
             if not existed:
-                _remove_if_empty(out)
+                _remove_if_empty(out, was_folder)
             raise
     _report(cfg, result)
     return result
 
 
-def _remove_if_empty(out: Path) -> None:
+def _remove_if_empty(out: Path, was_folder: bool) -> None:
     """Remove the store this run created when it holds no episode and no failure mark (a refused or failed
     run leaves nothing behind); the folder itself stays if it was there before, empty."""
-    if not (out / "zarr.json").is_file() or list_infos(out / "episodes") or list_infos(out / "failures"):
+    if not out.is_dir() or list_infos(out / "episodes") or list_infos(out / "failures"):
+        return
+    if not was_folder:
+        shutil.rmtree(out)
         return
     for entry in out.iterdir():
         shutil.rmtree(entry) if entry.is_dir() else entry.unlink()
