@@ -164,14 +164,20 @@ collect(config(Path(sys.argv[1]), tasks=(0, 1, 2)), make_fake_worker)
 """
 
 
-def test_kill_9_then_rerun_equals_uninterrupted(tmp_path: Path) -> None:
-    out = tmp_path / "store"
+def collecting(out: Path, episodes: int) -> subprocess.Popen[bytes]:
+    """A slowed-down collection of tasks 0-2 into ``out`` in another process, once it has published ``episodes``."""
     env = {**os.environ, "FAKE_STEP_SECONDS": "0.05", "PYTHONPATH": f"{REPO}{os.pathsep}{REPO / 'src'}"}
     proc = subprocess.Popen([sys.executable, "-c", RUNNER, str(out)], cwd=REPO, env=env)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and len(list((out / "episodes").glob("t*"))) < episodes:
+        time.sleep(0.02)
+    return proc
+
+
+def test_kill_9_then_rerun_equals_uninterrupted(tmp_path: Path) -> None:
+    out = tmp_path / "store"
+    proc = collecting(out, 2)
     try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and len(list((out / "episodes").glob("t*"))) < 2:
-            time.sleep(0.02)
         time.sleep(0.12)  # into the next episode
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=10)

@@ -4,12 +4,8 @@ work, the store untouched), one writer at a time, and a refused run leaves nothi
 from __future__ import annotations
 
 import dataclasses
-import os
 import re
 import signal
-import subprocess
-import sys
-import time
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -24,7 +20,7 @@ from tests.collection.fakes import (
     make_fake_worker,
     serial_keys,
 )
-from tests.collection.test_collect import RUNNER, config, keys
+from tests.collection.test_collect import collecting, config, keys
 
 from vlaprobe.collection.collect import collect
 from vlaprobe.collection.store import read_meta
@@ -238,12 +234,8 @@ def test_a_refused_collection_leaves_nothing_behind(
 
 def test_two_collections_into_one_store_then_kill_9_of_the_first(tmp_path: Path) -> None:
     out = tmp_path / "store"
-    env = {**os.environ, "FAKE_STEP_SECONDS": "0.05", "PYTHONPATH": f"{REPO}{os.pathsep}{REPO / 'src'}"}
-    proc = subprocess.Popen([sys.executable, "-c", RUNNER, str(out)], cwd=REPO, env=env)
+    proc = collecting(out, 1)
     try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not list((out / "episodes").glob("t*")):
-            time.sleep(0.02)
         before = keys(out)
         with pytest.raises(VlaprobeError, match=f"--out {out} is being written by pid {proc.pid} \\(.*-c"):
             collect(config(out, tasks=(0, 1, 2)), no_worker)
