@@ -154,7 +154,8 @@ def test_staged_episode_is_invisible_and_cleaned(tmp_path: Path) -> None:
     assert [e.key for e in ActivationStore.open(path).episodes()] == ["t00_i00_a00"]
     assert list(zarr.open_group(path / "episodes", mode="r").keys()) == ["t00_i00_a00"]
     assert set(w.outcomes()) == {"t00_i00_a00"}
-    os.close(w._lock_fd)  # die without cleaning up, as after kill -9 (the lock goes with the process)
+    assert w._lock is not None
+    os.close(w._lock._fd)  # die without cleaning up, as after kill -9 (the lock goes with the process)
     assert staged.path.exists()
     with StoreWriter.open(path, make_meta()) as w2:
         assert not staged.path.exists() and not (path / ".staging").exists()
