@@ -89,6 +89,13 @@ def test_a_second_training_into_the_same_folder_is_refused(store: Path) -> None:
         train_module.train_probes(TrainConfig(store=store, out=out, **FAST))
 
 
+def test_a_refused_training_leaves_nothing_behind(store: Path) -> None:
+    out = store.parent / "new" / "probes"
+    with pytest.raises(VlaprobeError, match="--shuffled-permutations must be at least 1"):
+        train_module.train_probes(TrainConfig(store=store, out=out, **{**FAST, "shuffled_permutations": 0}))
+    assert not out.parent.exists()  # neither the folder, its lock file nor the parent the lock made
+
+
 # ----- configs are written only when the stage succeeds ----------------------------------------------------
 def test_rejected_run_keeps_the_run_config(store: Path) -> None:
     config = store.parent / "config.json"
