@@ -194,14 +194,30 @@ def test_adding_without_perturbations_or_with_fixed_inits_is_refused(tmp_path: P
     _refused(config(sampled.out, **BASE), no_worker, '--inits is "sampled" in the store but "fixed"')
 
 
+def _forget(store: Path, *keys: str) -> None:
+    """Drop metadata keys, as a store written before they were recorded lacks them."""
+    with StoreWriter.open(store, read_meta(store)) as writer:
+        writer.meta = {k: v for k, v in writer.meta.items() if k not in keys}
+        writer.update_meta()
+    assert not set(keys) & set(read_meta(store))
+
+
 def test_a_sampled_store_of_seed_independent_layouts_is_not_resumed(tmp_path: Path) -> None:
     cfg = config(tmp_path / "store", **BASE, env=EnvConfig(max_steps=6, image_size=16, inits="sampled"))
     collect(cfg, make_fake_worker)
-    with StoreWriter.open(cfg.out, read_meta(cfg.out)) as writer:  # as the earlier vlaprobe wrote it
-        writer.meta = {k: v for k, v in writer.meta.items() if k != "layouts"}
-        writer.update_meta()
-    assert "layouts" not in read_meta(cfg.out)
+    _forget(cfg.out, "layouts")
     _refused(cfg, no_worker, f'--inits: the layouts is "{LAYOUTS_BEFORE}" in the store but')
+
+
+def test_an_older_store_without_first_init_and_keep_failed_reads_them_from_its_config(tmp_path: Path) -> None:
+    cfg = config(tmp_path / "store", **BASE, first_init=2, keep_failed=True)
+    collect(cfg, make_fake_worker)
+    _forget(cfg.out, "first_init", "keep_failed")
+    _refused(dataclasses.replace(cfg, first_init=0), no_worker, "--first-init is 2 in the store but 0")
+    _refused(
+        dataclasses.replace(cfg, keep_failed=False), no_worker, "--keep-failed is true in the store but false"
+    )
+    collect(dataclasses.replace(cfg, episodes_per_task=2), make_fake_worker)  # the same settings resume
 
 
 def test_the_same_settings_resume(tmp_path: Path) -> None:

@@ -84,9 +84,16 @@ def _fsync_tree(folder: Path) -> None:
         list(pool.map(_fsync, paths))
 
 
+RECORDED_IN_CONFIG = ("first_init", "keep_failed")
+"""Defining settings that stores written before they were recorded still hold in the creating run's ``config``."""
+
+
 def check_compatible(path: Path, stored: Mapping[str, Json], meta: Mapping[str, Json]) -> None:
     """Refuse (one line, naming both values) a run whose :data:`DEFINING` settings differ from the store's."""
-    found = settings_difference(DEFINING, stored, meta, "store")
+    config = stored.get("config")
+    config = config if isinstance(config, dict) else {}
+    recorded = {**{k: config[k] for k in RECORDED_IN_CONFIG if k in config}, **stored}
+    found = settings_difference(DEFINING, recorded, meta, "store")
     if found:
         raise VlaprobeError(
             f"cannot add to store {path}: {found}; collect into another --out or rerun with the store's settings"
