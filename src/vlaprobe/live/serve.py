@@ -170,8 +170,10 @@ def build_engine(
         tasks = dict(suite_tasks(cfg.env.suite))
         num_init_states = init_states(cfg.env.suite, 0)  # no simulator needed
 
+        env_cfg = replace(cfg.env, layout_seed=cfg.seed)  # sampled layouts as collect --seed's
+
         def make_env(task: int) -> TaskEnv:
-            return make_task_env(task, cfg.env)
+            return make_task_env(task, env_cfg)
 
     extra = {} if make_driver is None else {"make_driver": make_driver}
     sim = Simulator(
