@@ -45,4 +45,4 @@ class EnvConfig:
     """Step budget of one episode (OpenVLA's LIBERO-spatial evaluation allows 220 after settling)."""
     layout_seed: tyro.conf.Suppress[int] = 0
     """Seed of the sampled layouts (``--inits sampled|sampled-swap``): a layout is a function of the suite, the
-    task, this seed and the sample index. Not a flag: `vlaprobe collect` sets it from its ``--seed``."""
+    task, this seed and the sample index. Not a flag: `vlaprobe collect` and `serve` set it from their ``--seed``."""
