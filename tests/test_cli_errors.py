@@ -62,7 +62,7 @@ def test_failed_final_write_keeps_the_old_probes_whole(
     assert "No space left on device" in err and "free some disk space" in err
     assert folder_bytes(out) == before  # config.json and evaluation.json of the failed run are not in it
     beside = sorted(p.name for p in out.parent.iterdir())
-    assert beside == [".probes.lock", "activations", "probes"]  # no half-written folder beside it
+    assert beside == ["activations", "probes"]  # no half-written folder (nor lock file) beside it
 
 
 def test_leftovers_of_a_killed_run_are_cleaned(store: Path) -> None:
@@ -85,8 +85,15 @@ def test_leftovers_of_a_killed_run_are_cleaned(store: Path) -> None:
 
 def test_a_second_training_into_the_same_folder_is_refused(store: Path) -> None:
     out = store.parent / "probes"
-    with locked(out), pytest.raises(VlaprobeError, match="being written by another `vlaprobe train`"):
+    with locked(out), pytest.raises(VlaprobeError, match=f"is being written by pid {os.getpid()}"):
         train_module.train_probes(TrainConfig(store=store, out=out, **FAST))
+
+
+def test_a_refused_training_leaves_nothing_behind(store: Path) -> None:
+    out = store.parent / "new" / "probes"
+    with pytest.raises(VlaprobeError, match="--shuffled-permutations must be at least 1"):
+        train_module.train_probes(TrainConfig(store=store, out=out, **{**FAST, "shuffled_permutations": 0}))
+    assert not out.parent.exists()  # neither the folder, its lock file nor the parent the lock made
 
 
 # ----- configs are written only when the stage succeeds ----------------------------------------------------
@@ -621,7 +628,10 @@ def test_finetune_refuses_bad_settings(
     "store, message",
     [
         ("no_images", "has no images or actions"),
-        ("single", "the validation split is empty"),
+        (
+            "single",
+            "the validation split is empty: every task has fewer than 2 episodes; collect at least 2 episodes of some task (`vlaprobe collect --episodes-per-task 2`)",
+        ),
     ],
 )
 def test_finetune_refuses_stores_it_cannot_train_on(
@@ -661,8 +671,9 @@ def test_finetune_refuses_to_resume_another_shape_or_other_settings(
     assert "holds a checkpoint of another model shape (text.hidden_size 32 vs 48)" in one_line_error(
         capsys, wide
     )
-    assert "holds a run with other settings (lr 0.0005 vs 0.001)" in one_line_error(
-        capsys, [*argv, "--lr", "1e-3"]
+    assert (
+        "holds a run with other settings (--lr is 0.0005 in the folder but 0.001 in this run)"
+        in one_line_error(capsys, [*argv, "--lr", "1e-3"])
     )
     (out / "notes.txt").write_text("mine")
     assert "holds other files (notes.txt)" in one_line_error(capsys, argv)

@@ -10,6 +10,7 @@ import vlaprobe
 ORDER = (
     "errors",
     "files",
+    "locks",
     "devices",
     "symbols",
     "configs",

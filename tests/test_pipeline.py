@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -63,3 +64,47 @@ def test_a_finished_run_folder_can_be_run_again(tmp_path: Path) -> None:
         (out / name).write_text("{}")
     mark_folder(out, RUN_FOLDER.owner)
     check_owned_folder(out, RUN_FOLDER)
+
+
+def _fake_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, **collect_changes: object) -> RunConfig:
+    """A `vlaprobe run` config on the fake simulator and model."""
+    from tests.collection.fakes import make_fake_worker
+
+    import vlaprobe.collection.collect as collection
+    from vlaprobe.configs.collect import CollectConfig
+    from vlaprobe.configs.env import EnvConfig
+
+    real_collect = collection.collect
+    monkeypatch.setattr(collection, "collect", lambda cfg: real_collect(cfg, make_fake_worker))
+    monkeypatch.setattr("vlaprobe.pipeline.check_run_suite", lambda cfg: None)  # the fake has no LIBERO suite
+    collect = CollectConfig(
+        tasks=(0,), episodes_per_task=2, progress=False, env=EnvConfig(max_steps=6, image_size=16)
+    )
+    return RunConfig(
+        out=tmp_path / "runs" / "r", collect=dataclasses.replace(collect, **collect_changes), control_model=""
+    )
+
+
+def test_a_refused_run_leaves_no_run_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from vlaprobe.errors import VlaprobeError
+    from vlaprobe.pipeline import run
+
+    cfg = _fake_run(tmp_path, monkeypatch, first_init=12)  # the fake tasks have 12 init states
+    with pytest.raises(VlaprobeError, match="--first-init 12 leaves no init state"):
+        run(cfg)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_second_run_into_the_same_folder_is_refused(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from tests.test_locks import held
+
+    from vlaprobe.errors import VlaprobeError
+    from vlaprobe.pipeline import run
+
+    cfg = _fake_run(tmp_path, monkeypatch)
+    with held(cfg.out, "vlaprobe run --out r") as proc, pytest.raises(VlaprobeError) as err:
+        run(cfg)
+    assert f"is being written by pid {proc.pid} (vlaprobe run --out r)" in str(err.value)
+    assert not cfg.out.exists()

@@ -6,7 +6,7 @@ import json
 import os
 import sys
 import tempfile
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -155,6 +155,63 @@ def check_owned_folder(out: str | Path, kind: FolderKind, flag: str = "--out") -
 def mark_folder(out: str | Path, owner: str) -> None:
     """Leave ``owner``'s marker in ``out`` (created if needed): the folder is the command's from now on."""
     write_atomic(Path(out) / OWNER_FILE, owner + "\n")
+
+
+# -- the settings that define an output, compared when a run adds to one ------------------------------------
+@dataclass(frozen=True)
+class Setting:
+    """One setting that defines what an output folder holds: a run that adds to the folder must share it."""
+
+    key: str
+    """Its key in the folder's recorded settings (a store's metadata, a run's settings file)."""
+    label: str
+    """How the one-line refusal names it: the flag that sets it ("--perturb"), or what it is."""
+    default: Json = None
+    """Its value in folders written before it was recorded (None: it has always been recorded)."""
+
+
+def _short(value: Json) -> str:
+    text = json.dumps(value, sort_keys=True, default=str)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def json_difference(old: Json, new: Json, where: str = "") -> tuple[str, Json, Json] | None:
+    """The first path below ``where`` at which two JSON values differ, with both values there; None if equal."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        for k in sorted(set(old) | set(new), key=str):
+            found = json_difference(old.get(k), new.get(k), f"{where}.{k}")
+            if found:
+                return found
+        return None
+    if isinstance(old, list | tuple) and isinstance(new, list | tuple) and len(old) == len(new):
+        for i, (a, b) in enumerate(zip(old, new, strict=True)):
+            found = json_difference(a, b, f"{where}[{i}]")
+            if found:
+                return found
+        return None
+    return None if old == new else (where, old, new)
+
+
+def as_json(value: object) -> Json:
+    """``value`` as it reads back from JSON (tuples become lists...), so comparisons are like for like."""
+    return json.loads(json.dumps(value, default=str))
+
+
+def settings_difference(
+    settings: Collection[Setting], recorded: Mapping[str, Json], now: Mapping[str, Json], folder: str
+) -> str | None:
+    """The first of ``settings`` in which this run (``now``) differs from what ``folder`` recorded, as
+    "LABEL is A in the FOLDER but B in this run"; None when they all agree. A setting without a default is
+    compared only when ``now`` has it (a caller may check before it knows every value)."""
+    for s in settings:
+        if s.key not in now and s.default is None:
+            continue
+        found = json_difference(recorded.get(s.key, s.default), as_json(now.get(s.key, s.default)))
+        if found:
+            path, old, new = found
+            label = s.label + (path.replace("_", "-") if s.label.startswith("--") else path)
+            return f"{label} is {_short(old)} in the {folder} but {_short(new)} in this run"
+    return None
 
 
 T = TypeVar("T")

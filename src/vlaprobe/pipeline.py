@@ -13,7 +13,8 @@ from vlaprobe.configs.checks import REPORT_FOLDER, RUN_FOLDER, check_run
 from vlaprobe.configs.report import ReportConfig
 from vlaprobe.configs.run import RunConfig
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import check_owned_folder, mark_folder, write_atomic
+from vlaprobe.files import OWNER_FILE, check_owned_folder, mark_folder, write_atomic
+from vlaprobe.locks import lock_folder
 from vlaprobe.probes.outfolder import check_probe_folder
 
 
@@ -68,17 +69,33 @@ def _save_config(cfg: RunConfig) -> Path:
 
 
 def run(cfg: RunConfig) -> Path:
-    """Run all stages; return the report page. Re-running the same config resumes the collection."""
+    """Run all stages; return the report page. Re-running the same config resumes the collection. A run
+    refused before it wrote anything leaves no run folder behind."""
+    check_run(cfg)
+    check_run_suite(cfg)
+    check_owned_folder(cfg.out, RUN_FOLDER)
+    out = Path(cfg.out)
+    with lock_folder(out):
+        existed = out.is_dir()
+        fresh = not existed or not any(out.iterdir())
+        try:
+            return _run(stage_configs(cfg))
+        except BaseException:
+            if fresh and out.is_dir() and {p.name for p in out.iterdir()} <= {OWNER_FILE}:
+                (out / OWNER_FILE).unlink(missing_ok=True)  # nothing of value was written: leave no trace
+                if not existed:
+                    out.rmdir()
+            raise
+
+
+def _run(cfg: RunConfig) -> Path:
+    """The stages, under the run folder's lock."""
     from vlaprobe.cognition.monitor import monitor
     from vlaprobe.collection.collect import collect
     from vlaprobe.probes.results import read_evaluation
     from vlaprobe.probes.train import train_probes
     from vlaprobe.results import build_results, write_results
 
-    check_run(cfg)
-    check_run_suite(cfg)
-    check_owned_folder(cfg.out, RUN_FOLDER)
-    cfg = stage_configs(cfg)
     assert cfg.train.out is not None and cfg.report.out is not None  # stage_configs set them
     check_probe_folder(cfg.train.out, "--out")
     check_owned_folder(cfg.report.out, REPORT_FOLDER, "--out")

@@ -136,7 +136,7 @@ def test_incompatible_settings_are_refused_before_work(tmp_path: Path) -> None:
 
     with pytest.raises(VlaprobeError, match='driver is "expert" in the store but "policy"'):
         collect(dataclasses.replace(cfg, driver="policy"), no_worker)
-    with pytest.raises(VlaprobeError, match=r"env\.max_steps"):
+    with pytest.raises(VlaprobeError, match=r"--env\.max-steps is 6 in the store but 7 in this run"):
         collect(dataclasses.replace(cfg, env=EnvConfig(max_steps=7, image_size=16)), no_worker)
     with pytest.raises(VlaprobeError, match=r"--tasks \[5\] do not exist"):
         collect(dataclasses.replace(cfg, tasks=(5,)), make_fake_worker)
@@ -164,14 +164,20 @@ collect(config(Path(sys.argv[1]), tasks=(0, 1, 2)), make_fake_worker)
 """
 
 
-def test_kill_9_then_rerun_equals_uninterrupted(tmp_path: Path) -> None:
-    out = tmp_path / "store"
+def collecting(out: Path, episodes: int) -> subprocess.Popen[bytes]:
+    """A slowed-down collection of tasks 0-2 into ``out`` in another process, once it has published ``episodes``."""
     env = {**os.environ, "FAKE_STEP_SECONDS": "0.05", "PYTHONPATH": f"{REPO}{os.pathsep}{REPO / 'src'}"}
     proc = subprocess.Popen([sys.executable, "-c", RUNNER, str(out)], cwd=REPO, env=env)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and len(list((out / "episodes").glob("t*"))) < episodes:
+        time.sleep(0.02)
+    return proc
+
+
+def test_kill_9_then_rerun_equals_uninterrupted(tmp_path: Path) -> None:
+    out = tmp_path / "store"
+    proc = collecting(out, 2)
     try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and len(list((out / "episodes").glob("t*"))) < 2:
-            time.sleep(0.02)
         time.sleep(0.12)  # into the next episode
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=10)
@@ -247,7 +253,7 @@ def test_dagger_store_keeps_the_experts_labels_and_its_beta(tmp_path: Path) -> N
         by_expert += int(np.all(action[acted] == expert[acted], axis=1).sum())
         by_model += int(np.all(action[acted] == predicted[acted], axis=1).sum())
     assert by_expert > 0 and by_model > 0  # beta 0.5: both acted
-    with pytest.raises(VlaprobeError, match=r"dagger_beta is 0\.5 in the store but 0\.2"):
+    with pytest.raises(VlaprobeError, match=r"--dagger-beta is 0\.5 in the store but 0\.2"):
         collect(dataclasses.replace(cfg, dagger_beta=0.2), make_fake_worker)
     with pytest.raises(VlaprobeError, match="--dagger-beta applies to --driver dagger only"):
         collect(config(tmp_path / "other", dagger_beta=0.5), make_fake_worker)

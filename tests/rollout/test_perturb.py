@@ -26,6 +26,12 @@ def test_spec_parses_kinds_and_refuses_unknown_kinds_and_bad_probabilities() -> 
             PerturbSpec.parse(bad)
 
 
+def test_spec_refuses_a_kind_given_twice() -> None:
+    for twice in ("drop=0.2,drop=0.9", "knock_off=1, knock-off=0.5"):
+        with pytest.raises(VlaprobeError, match="is given twice"):
+            PerturbSpec.parse(twice)
+
+
 def world(pos: np.ndarray, half: float = 0.04) -> WorldState:
     env = FakeEnv(0, None)
     env.reset(0)

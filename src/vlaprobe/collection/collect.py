@@ -9,7 +9,9 @@ episodes in flight; rerunning the same command resumes and ends with the same ep
 
 from __future__ import annotations
 
+import dataclasses
 import shlex
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -20,16 +22,17 @@ from tqdm import tqdm
 
 from vlaprobe.collection.executors import Executor, MakeWorker, make_executor
 from vlaprobe.collection.plan import Plan, Unit
-from vlaprobe.collection.store import EpisodeInfo, read_meta
+from vlaprobe.collection.store import EpisodeInfo, list_infos, read_meta
 from vlaprobe.collection.verify import require_intact
 from vlaprobe.collection.worker import EpisodeResult, RunDescription, Worker, unit_seed
-from vlaprobe.collection.writer import StagedEpisode, StoreWriter, check_compatible
+from vlaprobe.collection.writer import LAYOUTS, StagedEpisode, StoreWriter, check_compatible
 from vlaprobe.configs import config_to_dict
 from vlaprobe.configs.checks import check_collect
 from vlaprobe.configs.collect import CollectConfig
 from vlaprobe.envs.setup import resolve_assets
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject, check_output_folder, versions
+from vlaprobe.locks import FolderLock, lock_folder
 from vlaprobe.rollout.perturb import PerturbSpec
 
 VOLATILE_MODEL_KEYS = ("device", "source")
@@ -93,9 +96,12 @@ def _env_meta(cfg: CollectConfig) -> JsonObject:
 
 
 def _run_meta(cfg: CollectConfig) -> JsonObject:
-    """The settings an existing store must share, known before any model is loaded (sampled inits and
-    perturbations only when used, so that stores of the defaults written before them still resume)."""
-    extra: JsonObject = {"inits": cfg.env.inits} if cfg.env.inits != "fixed" else {}
+    """The settings an existing store must share (:data:`~vlaprobe.collection.writer.DEFINING`), known before
+    any model is loaded. Perturbations, the DAgger beta and the layouts only when used: a store without them
+    reads as having their defaults."""
+    extra: JsonObject = {}
+    if cfg.env.inits != "fixed":
+        extra["layouts"] = LAYOUTS
     if cfg.perturb:
         extra["perturb"] = PerturbSpec.parse(cfg.perturb).text()
     if cfg.driver == "dagger":
@@ -108,6 +114,9 @@ def _run_meta(cfg: CollectConfig) -> JsonObject:
         "env": _env_meta(cfg),
         "seed": cfg.policy.seed,
         "post_success_steps": cfg.post_success_steps,
+        "inits": cfg.env.inits,
+        "first_init": cfg.first_init,
+        "keep_failed": cfg.keep_failed,
     }
 
 
@@ -172,13 +181,42 @@ def collect(cfg: CollectConfig, make_worker: MakeWorker = Worker) -> CollectResu
     check_collect(cfg)
     check_collect_suite(cfg)
     _validate(cfg)
-    start = time.perf_counter()
+    cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, layout_seed=cfg.policy.seed))
     out = Path(cfg.out)
     check_output_folder(out)  # a file or an unwritable path fails here, not after the model has loaded
     resolve_assets(cfg.env.assets, cfg.env.suite)  # bad LIBERO assets fail before the model loads
-    if out.is_dir() and any(out.iterdir()):  # fail fast, before any model is loaded
-        check_compatible(out, read_meta(out, "choose a new or empty folder for --out"), _run_meta(cfg))
-        require_intact(out)  # a damaged episode would otherwise block or poison the resume
+    with lock_folder(out) as lock:
+        was_folder = out.is_dir()
+        existed = was_folder and any(out.iterdir())
+        if existed:  # fail fast, before any model is loaded
+            check_compatible(out, read_meta(out, "choose a new or empty folder for --out"), _run_meta(cfg))
+            require_intact(out)  # a damaged episode would otherwise block or poison the resume
+        try:
+            result = _collect(cfg, make_worker, lock)
+        except BaseException:
+            if not existed:
+                _remove_if_empty(out, was_folder)
+            raise
+    _report(cfg, result)
+    return result
+
+
+def _remove_if_empty(out: Path, was_folder: bool) -> None:
+    """Remove the store this run created when it holds no episode and no failure mark (a refused or failed
+    run leaves nothing behind); the folder itself stays if it was there before, empty."""
+    if not out.is_dir() or list_infos(out / "episodes") or list_infos(out / "failures"):
+        return
+    if not was_folder:
+        shutil.rmtree(out)
+        return
+    for entry in out.iterdir():
+        shutil.rmtree(entry) if entry.is_dir() else entry.unlink()
+
+
+def _collect(cfg: CollectConfig, make_worker: MakeWorker, lock: FolderLock) -> CollectResult:
+    """The run itself, under the store's lock: describe, open the store, plan, loop."""
+    start = time.perf_counter()
+    out = Path(cfg.out)
     executor = make_executor(cfg, make_worker)
     writer: StoreWriter | None = None
     progress: _Progress | None = None
@@ -190,7 +228,13 @@ def collect(cfg: CollectConfig, make_worker: MakeWorker = Worker) -> CollectResu
             raise VlaprobeError(
                 f"--tasks {unknown} do not exist; {cfg.env.suite} has tasks 0-{max(desc.tasks)} (see `vlaprobe tasks`)"
             )
-        writer = StoreWriter.open(out, _store_meta(cfg, desc))
+        left = desc.num_init_states - cfg.first_init
+        if left < 1:
+            raise VlaprobeError(
+                f"--first-init {cfg.first_init} leaves no init state; the tasks have {desc.num_init_states} "
+                f"(0-{desc.num_init_states - 1})"
+            )
+        writer = StoreWriter.open(out, _store_meta(cfg, desc), lock)
         run = {
             "command": shlex.join(sys.argv),
             "config": config_to_dict(cfg),
@@ -200,12 +244,6 @@ def collect(cfg: CollectConfig, make_worker: MakeWorker = Worker) -> CollectResu
         }
         writer.update_meta(runs=[*writer.meta.get("runs", []), run])
         known = {(e.task, e.init): e.success for e in writer.outcomes().values() if e.attempt == 0}
-        left = desc.num_init_states - cfg.first_init
-        if left < 1:
-            raise VlaprobeError(
-                f"--first-init {cfg.first_init} leaves no init state; the tasks have {desc.num_init_states} "
-                f"(0-{desc.num_init_states - 1})"
-            )
         budget = min(cfg.max_tries_per_task or left, left)
         plan = Plan(tasks, cfg.episodes_per_task, budget, known, first=cfg.first_init)
         progress = _Progress(cfg, plan)
@@ -223,7 +261,6 @@ def collect(cfg: CollectConfig, make_worker: MakeWorker = Worker) -> CollectResu
         executor.close()
         if writer is not None:
             writer.close()
-    _report(cfg, result)
     return result
 
 

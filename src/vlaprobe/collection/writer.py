@@ -2,14 +2,12 @@
 
 An episode is written into ``<store>/.staging/`` (same filesystem, outside the zarr hierarchy), fsync'd, and
 published with one atomic ``os.rename`` into ``episodes/``: readers, and a rerun after ``kill -9``, see an
-episode completely or not at all. The writer holds an exclusive ``flock`` on the store folder, so it may
-delete whatever a killed predecessor left in ``.staging/``.
+episode completely or not at all. The writer holds the store folder's lock (:mod:`vlaprobe.locks`), so it
+may delete whatever a killed predecessor left in ``.staging/``.
 """
 
 from __future__ import annotations
 
-import fcntl
-import json
 import os
 import shutil
 import uuid
@@ -30,7 +28,8 @@ from vlaprobe.collection.store import (
     read_meta,
 )
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import Json, JsonObject
+from vlaprobe.files import Json, JsonObject, Setting, as_json, settings_difference
+from vlaprobe.locks import FolderLock, lock_folder
 
 STAGING = ".staging"
 CHUNK_BYTES = 8 << 20
@@ -38,23 +37,31 @@ CHUNK_BYTES = 8 << 20
 FSYNC_THREADS = 8
 CHUNK_KEYS = {"name": "default", "separator": "."}
 """Chunk files named ``c.<i>.<j>...`` inside the array's folder: no nested folder per chunk dimension."""
-COMPATIBLE_KEYS = (
-    "atom_names",
-    "model_id",
-    "model",
-    "num_hidden_states",
-    "hidden_size",
-    "pooling",
-    "driver",
-    "dagger_beta",
-    "suite",
-    "env",
-    "seed",
-    "post_success_steps",
+LAYOUTS = "by suite, task, seed and sample index"
+"""What a sampled layout is a function of (recorded under ``--inits sampled|sampled-swap``)."""
+LAYOUTS_BEFORE = "by task and sample index"
+"""... in stores written before the layouts depended on the seed (they cannot be resumed with this vlaprobe)."""
+DEFINING = (
+    Setting("model_id", "--model: the model id"),
+    Setting("model", "--model: the model"),
+    Setting("atom_names", "the atom vocabulary"),
+    Setting("num_hidden_states", "--model: the number of hidden states"),
+    Setting("hidden_size", "--model: the hidden size"),
+    Setting("pooling", "--pooling"),
+    Setting("driver", "--driver"),
+    Setting("dagger_beta", "--dagger-beta", 0.0),
+    Setting("suite", "--env.suite"),
+    Setting("env", "--env"),
+    Setting("seed", "--seed"),
+    Setting("post_success_steps", "--post-success-steps", 0),
+    Setting("inits", "--inits", "fixed"),
+    Setting("layouts", "--inits: the layouts", LAYOUTS_BEFORE),
+    Setting("perturb", "--perturb", ""),
+    Setting("first_init", "--first-init", 0),
+    Setting("keep_failed", "--keep-failed", False),
 )
-"""Metadata that must be equal for a run to add episodes to an existing store."""
-COMPATIBLE_DEFAULTS = {"post_success_steps": 0}
-"""Values of :data:`COMPATIBLE_KEYS` in stores written before the key existed."""
+"""The settings that define a store's episodes, the one list (a run adds to a store only with the same values).
+The model's entries are compared once the model is loaded; ``layouts`` only under sampled inits."""
 
 
 # ----- writing --------------------------------------------------------------------------------------------------
@@ -77,44 +84,20 @@ def _fsync_tree(folder: Path) -> None:
         list(pool.map(_fsync, paths))
 
 
-def _short(value: Json) -> str:
-    text = json.dumps(value, sort_keys=True, default=str)
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
-def _difference(old: Json, new: Json, where: str) -> str | None:
-    """The first path at which two JSON-like values differ, with both values; None if equal."""
-    if isinstance(old, dict) and isinstance(new, dict):
-        for k in sorted(set(old) | set(new), key=str):
-            d = _difference(old.get(k), new.get(k), f"{where}.{k}")
-            if d:
-                return d
-        return None
-    if isinstance(old, list | tuple) and isinstance(new, list | tuple) and len(old) == len(new):
-        for i, (a, b) in enumerate(zip(old, new, strict=True)):
-            d = _difference(a, b, f"{where}[{i}]")
-            if d:
-                return d
-        return None
-    if old != new:
-        return f"{where} is {_short(old)} in the store but {_short(new)} in this run"
-    return None
-
-
-def _jsonable(value: object) -> Json:
-    """``value`` as it reads back from JSON (tuples become lists...), so comparisons are like for like."""
-    return json.loads(json.dumps(value, default=str))
+RECORDED_IN_CONFIG = ("first_init", "keep_failed")
+"""Defining settings that stores written before they were recorded still hold in the creating run's ``config``."""
 
 
 def check_compatible(path: Path, stored: Mapping[str, Json], meta: Mapping[str, Json]) -> None:
-    """Refuse (one line) to mix runs whose :data:`COMPATIBLE_KEYS` present in ``meta`` differ from the store's."""
-    for key in COMPATIBLE_KEYS:
-        if key in meta:
-            d = _difference(stored.get(key, COMPATIBLE_DEFAULTS.get(key)), _jsonable(meta[key]), key)
-            if d:
-                raise VlaprobeError(
-                    f"cannot add to store {path}: {d}; collect into another --out or rerun with the store's settings"
-                )
+    """Refuse (one line, naming both values) a run whose :data:`DEFINING` settings differ from the store's."""
+    config = stored.get("config")
+    config = config if isinstance(config, dict) else {}
+    recorded = {**{k: config[k] for k in RECORDED_IN_CONFIG if k in config}, **stored}
+    found = settings_difference(DEFINING, recorded, meta, "store")
+    if found:
+        raise VlaprobeError(
+            f"cannot add to store {path}: {found}; collect into another --out or rerun with the store's settings"
+        )
 
 
 def _chunks(name: str, shape: tuple[int, ...], itemsize: int) -> tuple[int, ...]:
@@ -140,43 +123,40 @@ class StoreWriter:
     Use as a context manager; the store folder stays locked against other writers until :meth:`close`.
     """
 
-    def __init__(self, path: Path, meta: JsonObject, lock_fd: int) -> None:
+    def __init__(self, path: Path, meta: JsonObject, lock: FolderLock | None) -> None:
         self.path = path
         self.meta = meta
-        self._lock_fd = lock_fd
+        self._lock = lock
         self._staging = path / STAGING
+        self._open = True
 
     @classmethod
-    def open(cls, path: str | Path, meta: Mapping[str, Json]) -> StoreWriter:
+    def open(cls, path: str | Path, meta: Mapping[str, Json], lock: FolderLock | None = None) -> StoreWriter:
         """Create the store with ``meta`` as its metadata, or open an existing compatible one.
 
-        ``meta`` must hold every :data:`COMPATIBLE_KEYS` entry plus whatever else the store should record.
-        Leftovers of a killed writer (staged episodes, partial metadata files) are deleted.
+        ``meta`` must hold every :data:`DEFINING` entry plus whatever else the store should record. ``lock``:
+        the caller's lock on the store folder (:func:`vlaprobe.locks.lock_folder`); without one the writer takes
+        it, and releases it on :meth:`close`. Leftovers of a killed writer (staged episodes, partial metadata
+        files) are deleted.
         """
         path = Path(path)
         if path.exists() and not path.is_dir():
             raise VlaprobeError(f"--out {path} is a file, not a store folder; choose a folder path")
-        if not path.exists() or not any(path.iterdir()):
-            cls._create(path, {**_jsonable(dict(meta)), "format": FORMAT, "format_version": FORMAT_VERSION})
-        stored = read_meta(path, "choose a new or empty folder for --out, or an existing store")
-        fd = os.open(path, os.O_RDONLY)
+        own = lock_folder(path) if lock is None else None
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            raise VlaprobeError(
-                f"store {path} is being written by another process; wait for it to finish or use another --out"
-            ) from None
-        try:
+            if not path.exists() or not any(path.iterdir()):
+                cls._create(path, {**as_json(dict(meta)), "format": FORMAT, "format_version": FORMAT_VERSION})
+            stored = read_meta(path, "choose a new or empty folder for --out, or an existing store")
             check_compatible(path, stored, meta)
             shutil.rmtree(path / STAGING, ignore_errors=True)
             for folder in (path, path / "episodes", path / "failures"):
                 for leftover in folder.glob("*.partial"):  # zarr's own temp files of an interrupted write
                     leftover.unlink(missing_ok=True)
         except BaseException:
-            os.close(fd)
+            if own is not None:
+                own.release()
             raise
-        return cls(path, stored, fd)
+        return cls(path, stored, own)
 
     @staticmethod
     def _create(path: Path, meta: JsonObject) -> None:
@@ -204,7 +184,7 @@ class StoreWriter:
 
     def update_meta(self, **fields: Json) -> None:
         """Set metadata fields (e.g. the list of runs); the root metadata file is replaced atomically."""
-        self.meta = {**self.meta, **_jsonable(fields)}
+        self.meta = {**self.meta, **as_json(fields)}
         root = zarr.open_group(zarr.storage.LocalStore(self.path), mode="r+")
         root.attrs.put(self.meta)
         _fsync(self.path / "zarr.json")
@@ -242,7 +222,7 @@ class StoreWriter:
         self._staging.mkdir(exist_ok=True)
         tmp = self._staging / f"{info.key}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         group = zarr.open_group(
-            zarr.storage.LocalStore(tmp), mode="w-", attributes=_jsonable({**(attrs or {}), **info.attrs()})
+            zarr.storage.LocalStore(tmp), mode="w-", attributes=as_json({**(attrs or {}), **info.attrs()})
         )
         heads = {name: head for head, name in ATOM_ARRAYS.items()}
         for name, a in arrays.items():
@@ -291,18 +271,19 @@ class StoreWriter:
         self._staging.mkdir(exist_ok=True)
         tmp = self._staging / f"{info.key}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         zarr.open_group(
-            zarr.storage.LocalStore(tmp), mode="w-", attributes=_jsonable({**(attrs or {}), **info.attrs()})
+            zarr.storage.LocalStore(tmp), mode="w-", attributes=as_json({**(attrs or {}), **info.attrs()})
         )
         _fsync_tree(tmp)
         self._move_in(StagedEpisode(info, tmp), "failures")
 
     def close(self) -> None:
-        """Delete what is still staged (never published) and release the lock."""
-        if self._lock_fd < 0:
+        """Delete what is still staged (never published) and release the lock if the writer took it."""
+        if not self._open:
             return
+        self._open = False
         shutil.rmtree(self._staging, ignore_errors=True)
-        os.close(self._lock_fd)
-        self._lock_fd = -1
+        if self._lock is not None:
+            self._lock.release()
 
     def __enter__(self) -> StoreWriter:
         return self

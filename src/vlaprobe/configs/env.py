@@ -43,3 +43,6 @@ class EnvConfig:
     where the instruction no longer names the object to pick alone (docs/collection.md)."""
     max_steps: int = 300
     """Step budget of one episode (OpenVLA's LIBERO-spatial evaluation allows 220 after settling)."""
+    layout_seed: tyro.conf.Suppress[int] = 0
+    """Seed of the sampled layouts (``--inits sampled|sampled-swap``): a layout is a function of the suite, the
+    task, this seed and the sample index. Not a flag: `vlaprobe collect` and `serve` set it from their ``--seed``."""

@@ -223,7 +223,7 @@ class LiberoTaskEnv:
         problem, names = self._sim_env.parsed_problem, self.scene.tabletop
         rejected: list[str] = []
         for draw in range(MAX_DRAWS):
-            seed = placement_seed(self.task_index, init, draw)
+            seed = placement_seed(self.cfg.suite, self.task_index, self.cfg.layout_seed, init, draw)
             regions = self._swap(np.random.default_rng(seed)) if self._reference else None
             self._prepare_reset(seed)
             self._unplace_fixtures()

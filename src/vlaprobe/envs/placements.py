@@ -3,8 +3,8 @@
 LIBERO samples a layout on every reset through robosuite's placement initializer (each object uniformly in
 its ``(:init)`` region's ranges, objects on objects or inside fixture regions conditioned on them); the fixed
 init states are 50 such samples saved per task. Here a reset without ``set_init_state`` draws a new one from
-numpy's global generator, seeded from (task, sample index, draw), so a sample index is a reproducible
-placement like a fixed init state is. After the settle steps the layout is checked: nothing fell or tipped
+numpy's global generator, seeded from (suite, task, run seed, sample index, draw), so a sample index is a
+reproducible placement like a fixed init state is, and another run seed gives other layouts. After the settle steps the layout is checked: nothing fell or tipped
 over, nothing still moving, no two objects interpenetrating, every object still in (or on) what its
 ``(:init)`` condition names. A rejected draw is re-drawn (next ``draw``) and its reason kept.
 """
@@ -54,9 +54,9 @@ class PlacementReport:
     task's BDDL; empty otherwise."""
 
 
-def placement_seed(task: int, index: int, draw: int = 0) -> int:
-    """The seed of draw ``draw`` of sample ``index`` of ``task``; independent of any run seed."""
-    text = f"placement:{task}:{index}:{draw}".encode()
+def placement_seed(suite: str, task: int, seed: int, index: int, draw: int = 0) -> int:
+    """The seed of draw ``draw`` of sample ``index`` of ``suite``'s ``task`` in a run seeded with ``seed``."""
+    text = f"placement:{suite}:{task}:{seed}:{index}:{draw}".encode()
     return int.from_bytes(hashlib.sha256(text).digest()[:4], "little") & 0x7FFFFFFF
 
 

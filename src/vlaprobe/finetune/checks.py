@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -10,13 +11,20 @@ from vlaprobe.configs import config_to_dict
 from vlaprobe.configs.checks import check_seed
 from vlaprobe.configs.finetune import FinetuneConfig
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.files import Json, JsonObject
+from vlaprobe.files import JsonObject, Setting, as_json, json_difference, settings_difference
 from vlaprobe.finetune.state import CHECKPOINT, RUN_FILES, recover
 from vlaprobe.policies.openvla.config import OpenVLAConfig
 
 RUNTIME_FIELDS = frozenset({"out", "max_minutes", "threads", "progress", "device", "stores"})
 """Settings a resumed run may change (they do not change what is computed; stores are compared by their
 statistics instead of their paths)."""
+DEFINING = tuple(
+    Setting(f.name, "--" + f.name.replace("_", "-"), config_to_dict(FinetuneConfig())[f.name])
+    for f in dataclasses.fields(FinetuneConfig)
+    if f.name not in RUNTIME_FIELDS
+)
+"""The settings that define a fine-tune run, the one list (a resume must share them): every setting but
+:data:`RUNTIME_FIELDS`. One added after a run was written was at its default then."""
 
 
 def _positive(value: float, flag: str, upper: float = math.inf) -> None:
@@ -73,16 +81,6 @@ def check_finetune(cfg: FinetuneConfig) -> None:
         raise VlaprobeError("--lora already freezes every base weight; drop --freeze-vision")
 
 
-def _first_difference(a: Json, b: Json, path: str = "") -> str | None:
-    if isinstance(a, dict) and isinstance(b, dict):
-        for key in sorted(set(a) | set(b)):
-            found = _first_difference(a.get(key), b.get(key), f"{path}.{key}" if path else str(key))
-            if found:
-                return found
-        return None
-    return None if a == b else f"{path} {a!r} vs {b!r}"
-
-
 def check_run_folder(cfg: FinetuneConfig, arch: OpenVLAConfig) -> bool:
     """Whether ``--out`` holds a checkpoint to resume; refuses a folder of something else, a checkpoint of
     another model shape, or a run with other settings."""
@@ -102,15 +100,14 @@ def check_run_folder(cfg: FinetuneConfig, arch: OpenVLAConfig) -> bool:
     if not (out / CHECKPOINT).is_dir():
         return False
     saved_arch = read_config(out / CHECKPOINT)[0]
-    diff = _first_difference(saved_arch.to_dict(), arch.to_dict())
-    if diff:
+    shape = json_difference(as_json(saved_arch.to_dict()), as_json(arch.to_dict()))
+    if shape:
+        path, old, new = shape
         raise VlaprobeError(
-            f"--out {out} holds a checkpoint of another model shape ({diff}); choose a new --out for --model {cfg.model}"
+            f"--out {out} holds a checkpoint of another model shape ({path[1:]} {old} vs {new}); "
+            f"choose a new --out for --model {cfg.model}"
         )
-    # a setting added after the run was written was at its default then
-    saved = {**config_to_dict(FinetuneConfig()), **_read_settings(out / "finetune.json")}
-    now = {k: v for k, v in config_to_dict(cfg).items() if k not in RUNTIME_FIELDS}
-    diff = _first_difference({k: v for k, v in saved.items() if k not in RUNTIME_FIELDS}, now)
+    diff = settings_difference(DEFINING, _read_settings(out / "finetune.json"), config_to_dict(cfg), "folder")
     if diff:
         raise VlaprobeError(
             f"--out {out} holds a run with other settings ({diff}); rerun with its settings "

@@ -41,6 +41,7 @@ from vlaprobe.finetune.state import (
     read_metrics,
     read_train_state,
 )
+from vlaprobe.locks import lock_folder
 
 
 def _stats_of(norm_stats: JsonObject, name: str) -> ActionStats:
@@ -187,6 +188,11 @@ def build_trainer(cfg: FinetuneConfig) -> tuple[Trainer, JsonObject]:
 def finetune(cfg: FinetuneConfig) -> int:
     """Fine-tune, checkpoint, and print where the model is; returns the exit status."""
     cfg = dataclasses.replace(cfg, stores=tuple(Path(p) for p in cfg.stores), out=Path(cfg.out))
+    with lock_folder(cfg.out):  # a second fine-tune into the same folder is refused, not interleaved
+        return _finetune(cfg)
+
+
+def _finetune(cfg: FinetuneConfig) -> int:
     trainer, info = build_trainer(cfg)
     out = cfg.out
     out.mkdir(parents=True, exist_ok=True)

@@ -182,7 +182,7 @@ def split_episodes(demos: Demonstrations, val_fraction: float, seed: int, val_ma
     if not val_eps:
         raise VlaprobeError(
             "the validation split is empty: every task has fewer than 2 episodes; collect at least 2 episodes "
-            "of some task (--collect.episodes-per-task 2)"
+            "of some task (`vlaprobe collect --episodes-per-task 2`)"
         )
     rows = np.arange(len(demos.episode))
     train = rows[np.isin(demos.episode, train_eps)]

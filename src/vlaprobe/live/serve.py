@@ -29,6 +29,7 @@ from vlaprobe.live.app import Engine, Limits, create_app
 from vlaprobe.live.pipeline import EpisodeSpec, MakeCognition, Reading, StepBuilder
 from vlaprobe.live.replay import StoreReplays
 from vlaprobe.live.sources import Simulator, StoreEpisodes
+from vlaprobe.locks import lock_folder
 from vlaprobe.policies.base import VLAPolicy
 from vlaprobe.rollout.runner import MakeDriver, default_threads
 from vlaprobe.symbols import HEADS, Goal
@@ -169,8 +170,10 @@ def build_engine(
         tasks = dict(suite_tasks(cfg.env.suite))
         num_init_states = init_states(cfg.env.suite, 0)  # no simulator needed
 
+        env_cfg = replace(cfg.env, layout_seed=cfg.seed)  # sampled layouts as collect --seed's
+
         def make_env(task: int) -> TaskEnv:
-            return make_task_env(task, cfg.env)
+            return make_task_env(task, env_cfg)
 
     extra = {} if make_driver is None else {"make_driver": make_driver}
     sim = Simulator(
@@ -203,10 +206,18 @@ def build_engine(
         default_driver=cfg.driver,
         running=None,
     )
-    recordings = cfg.recordings if cfg.recordings is not None else cfg.probes.parent / "live"
     return Engine(
-        hello=hello, simulator=sim, make_builder=make_builder, recordings=recordings, replays=replays
+        hello=hello,
+        simulator=sim,
+        make_builder=make_builder,
+        recordings=recordings_folder(cfg),
+        replays=replays,
     )
+
+
+def recordings_folder(cfg: ServeConfig) -> Path:
+    """Where the server records its live episodes (``--recordings``, default ``live`` beside the probes)."""
+    return cfg.recordings if cfg.recordings is not None else cfg.probes.parent / "live"
 
 
 def store_replays(store: Path, probes: ProbeSet, make_builder: Callable[..., StepBuilder]) -> StoreReplays:
@@ -258,6 +269,15 @@ def main(cfg: ServeConfig) -> int:
     probes = load_probes(cfg)
     sock = _listen(cfg.host, cfg.port)  # before the model loads: a busy port fails at once
     try:
+        # one server records into a folder: a second one on it is refused before its model loads (the lock
+        # names the command without its arguments, which may hold a --token)
+        lock = lock_folder(
+            recordings_folder(cfg), "--recordings", command=f"vlaprobe serve on port {cfg.port}"
+        )
+    except BaseException:
+        sock.close()
+        raise
+    try:
         app = create_app(build_engine(cfg, probes), limits)
         port = sock.getsockname()[1]
         shown = f"[{cfg.host}]" if ":" in cfg.host else cfg.host
@@ -270,4 +290,5 @@ def main(cfg: ServeConfig) -> int:
         uvicorn.Server(config).run(sockets=[sock])
     finally:
         sock.close()
+        lock.release()
     return 0

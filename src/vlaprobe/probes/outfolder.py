@@ -3,13 +3,12 @@
 A probe folder's files (``probes.json``, ``probes.safetensors``, ``evaluation.json``, ``config.json``) are
 written into a fresh hidden sibling folder and swapped in with renames, so a kill at any moment leaves either
 the old folder or the new one, never a mix; leftovers of a killed run are removed by the next one. A folder
-holding anything else (an activation store, a run folder, a model) is refused before any work, and a lock
-file beside the folder keeps two trainings from writing it at once.
+holding anything else (an activation store, a run folder, a model) is refused before any work, and the
+folder's lock (:mod:`vlaprobe.locks`) keeps two trainings from writing it at once.
 """
 
 from __future__ import annotations
 
-import fcntl
 import os
 import shutil
 import uuid
@@ -20,6 +19,7 @@ from typing import TYPE_CHECKING
 
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import FolderKind, check_owned_folder
+from vlaprobe.locks import lock_folder
 
 if TYPE_CHECKING:
     from vlaprobe.probes.data import ProbeData
@@ -63,20 +63,10 @@ def clean_leftovers(out: Path) -> None:
 
 @contextmanager
 def locked(out: Path, flag: str = "--out") -> Iterator[None]:
-    """Hold an exclusive lock on ``out`` (a ``.<name>.lock`` file beside it) for the duration."""
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd = os.open(out.parent / f".{out.name}.lock", os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise VlaprobeError(
-                f"{flag} {out} is being written by another `vlaprobe train`; wait for it to finish or use another {flag}"
-            ) from None
+    """Hold the exclusive lock of ``out`` (:mod:`vlaprobe.locks`) for the duration; clean a killed run's leftovers."""
+    with lock_folder(out, flag):
         clean_leftovers(out)
         yield
-    finally:
-        os.close(fd)
 
 
 def replace_folder(out: Path, write: Callable[[Path], None]) -> Path:

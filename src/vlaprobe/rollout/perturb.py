@@ -65,6 +65,10 @@ class PerturbSpec:
                 p = float("nan")
             if not 0.0 <= p <= 1.0:
                 raise VlaprobeError(f"{flag}: {kind} needs a probability in [0, 1], got {value.strip()!r}")
+            if kind in values:
+                raise VlaprobeError(
+                    f"{flag}: {kind} is given twice ({values[kind]:g} and {p:g}); give each kind once"
+                )
             values[kind] = p
         return cls(**values)
 
