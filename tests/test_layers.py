@@ -24,6 +24,7 @@ ORDER = (
     "live",
     "results",
     "pipeline",
+    "doctor",
     "commands",
     "cli",
 )
