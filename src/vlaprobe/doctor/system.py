@@ -91,11 +91,12 @@ def pin_checks() -> list[Check]:
                 )
             )
             continue
-        figures = {"installed": version, "pin": str(req)}
+        pin = f"{req.name}{req.specifier}"  # without the extra's marker
+        figures = {"installed": version, "pin": pin}
         if satisfied(req, version):
             checks.append(Check(f"version.{name}", "ok", f"{version} (pin {req.specifier})", figures=figures))
             continue
-        install = f"pip install {'--no-deps ' if req in libero else ''}'{req}'"
+        install = f"pip install {'--no-deps ' if req in libero else ''}'{pin}'"
         summary = f"{version or 'not installed'}, needs {req.specifier}"
         checks.append(
             Check(f"version.{name}", "fail", summary, f"{install}, or {SETUP_FIX}", figures=figures)
