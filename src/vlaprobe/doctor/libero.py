@@ -110,7 +110,7 @@ def suite_check(cfg: DoctorConfig, folder: Path, source: str, suite: SuiteName) 
     summary = f"{len(paths)} files complete in {folder} ({source})"
     if not fake:
         return Check(name, "ok", summary, figures=figures)
-    summary += f"; {len(fake)} are generated stand-ins ({', '.join('/'.join(Path(f).parts[-2:]) for f in fake[:3])}{', ...' * (len(fake) > 3)}): rendered images differ from LIBERO's, physics and atoms do not"
+    summary += f"; {len(fake)} are generated stand-ins ({', '.join(str(Path(*Path(f).parts[1:])) for f in fake[:3])}{', ...' * (len(fake) > 3)}): rendered images differ from LIBERO's, physics and atoms do not"
     if required and cfg.policy.model not in MODEL_NAMES:
         fix = (
             "a checkpoint trained on LIBERO's images (OpenVLA's fine-tunes) should run on the original assets"
