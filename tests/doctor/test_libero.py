@@ -7,6 +7,7 @@ import os
 from pathlib import Path
 
 import pytest
+from tests.envs.test_assets import REAL_ASSETS, linked_copy
 
 from vlaprobe.configs.doctor import DoctorConfig
 from vlaprobe.configs.env import SUITES, EnvConfig
@@ -16,32 +17,29 @@ from vlaprobe.doctor.libero import STAND_INS, assets_checks, libero_check, stand
 from vlaprobe.envs.assets import ASSETS_ENV, SPATIAL_ASSETS
 
 
-@pytest.fixture(scope="module")
-def shared_assets(shared_dir: Path) -> Path:
-    folder = shared_dir / "libero_assets"
-    if not folder.is_dir():
-        pytest.skip("needs the shared LIBERO assets")
-    return folder
+@pytest.fixture
+def mirror(tmp_path: Path) -> Path:
+    """The real assets folder (the shared copy, with its stand-ins) as links to its files: a test may remove or
+    replace one."""
+    if not REAL_ASSETS:
+        pytest.skip("needs LIBERO's assets (VLAPROBE_LIBERO_ASSETS)")
+    return linked_copy(tmp_path)
 
 
 @pytest.fixture
-def mirror(shared_assets: Path, tmp_path: Path) -> Path:
-    """A copy of the shared assets folder made of links to its files (a test may remove or replace one)."""
-    root = tmp_path / "assets"
-    for path in shared_assets.rglob("*"):
-        if path.is_file():
-            target = root / path.relative_to(shared_assets)
-            target.parent.mkdir(parents=True, exist_ok=True)
-            target.symlink_to(path)
-    return root
+def offline_copy(mirror: Path, shared_dir: Path) -> Path:
+    """:func:`mirror` of the shared offline copy, the folder with the stand-ins."""
+    if Path(str(REAL_ASSETS)).resolve() != (shared_dir / "libero_assets").resolve():
+        pytest.skip("needs VLAPROBE_LIBERO_ASSETS to be the shared offline copy (its stand-ins)")
+    return mirror
 
 
 def config(folder: Path, model: str = "tiny-libero", suite: str = "libero_spatial") -> DoctorConfig:
     return DoctorConfig(policy=PolicyConfig(model=model), env=EnvConfig(suite=suite, assets=folder))  # type: ignore[arg-type]
 
 
-def test_every_suite_is_complete_in_the_shared_folder_and_its_stand_ins_are_named(mirror: Path) -> None:
-    checks = assets_checks(config(mirror))
+def test_every_suite_is_complete_in_the_shared_folder_and_its_stand_ins_are_named(offline_copy: Path) -> None:
+    checks = assets_checks(config(offline_copy))
     assert [c.name for c in checks] == [f"assets.{s}" for s in SUITES]
     assert {c.status for c in checks} == {"ok"}
     spatial = checks[0].figures["stand_ins"]
@@ -54,8 +52,8 @@ def test_every_suite_is_complete_in_the_shared_folder_and_its_stand_ins_are_name
     assert sorted(checks[-1].figures["stand_ins"]) == sorted(STAND_INS)  # LIBERO-90 loads all 16
 
 
-def test_a_checkpoint_on_stand_ins_warns(mirror: Path) -> None:
-    check = assets_checks(config(mirror, model="/ckpt/openvla-7b-finetuned-libero-spatial"))[0]
+def test_a_checkpoint_on_stand_ins_warns(offline_copy: Path) -> None:
+    check = assets_checks(config(offline_copy, model="/ckpt/openvla-7b-finetuned-libero-spatial"))[0]
     assert check.status == "warn" and ASSETS_ENV in check.fix
 
 
@@ -72,7 +70,8 @@ def test_a_missing_asset_fails_the_runs_suite_and_warns_for_the_others(mirror: P
     assert goal["assets.libero_goal"].status == "fail" and goal["assets.libero_spatial"].status == "warn"
 
 
-def test_a_replaced_stand_in_is_an_original(mirror: Path) -> None:
+def test_a_replaced_stand_in_is_an_original(offline_copy: Path) -> None:
+    mirror = offline_copy
     texture = mirror / "stable_scanned_objects/plate/texture.png"
     content = texture.read_bytes()
     texture.unlink()
