@@ -67,7 +67,7 @@ if ! "$VENV/bin/python" -c "import torch" 2>/dev/null; then
             "${PIP[@]}" "$spec" --extra-index-url "$TORCH_INDEX"
         else
             # The probe can miss a proxy only pip knows: then pip asks the index itself, with one retry.
-            echo "setup: torch's CPU index ${TORCH_INDEX:-(none)} did not answer; $spec from pip's configured sources"
+            echo "setup: ${TORCH_INDEX:-no torch index (VLAPROBE_TORCH_INDEX is empty)}${TORCH_INDEX:+ did not answer}; $spec from pip's configured sources"
             "${PIP[@]}" "$spec" \
                 || { [[ -n "$TORCH_INDEX" ]] && "${PIP[@]}" --retries 1 "$spec" --extra-index-url "$TORCH_INDEX"; } \
                 || {
