@@ -33,6 +33,12 @@ def test_a_backend_that_does_not_answer_in_time_is_ended() -> None:
     assert run.image is None and run.error.startswith("no image within 0.05 s")
 
 
+def test_an_interpreter_that_cannot_start_is_a_failed_backend(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(render.sys, "executable", "/no/such/python")
+    run = run_backend("osmesa", timeout=120)
+    assert run.image is None and run.error == "cannot start /no/such/python: No such file or directory"
+
+
 @needs_osmesa
 def test_osmesa_renders_the_scene_and_reports_its_timing() -> None:
     run = run_backend("osmesa", timeout=120)

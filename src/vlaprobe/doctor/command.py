@@ -11,7 +11,6 @@ import functools
 import json
 import math
 import os
-import sys
 import time
 
 from vlaprobe.configs.checks import at_least, check_device, check_env, check_policy
@@ -95,5 +94,5 @@ def doctor(cfg: DoctorConfig) -> int:
     if cfg.json:
         print(json.dumps(to_json(out.checks, seconds), indent=2))
     else:
-        print(closing_line(out.checks, seconds), file=sys.stdout)
+        print(closing_line(out.checks, seconds))
     return 0 if ready(out.checks) else 1

@@ -68,12 +68,15 @@ def run_backend(backend: str, timeout: float) -> BackendRun:
         except subprocess.TimeoutExpired:
             error = f"no image within {timeout:g} s (a hanging driver?); its process was ended"
             return BackendRun(backend, time.perf_counter() - start, {}, None, error)
+        except OSError as exc:
+            return BackendRun(backend, 0.0, {}, None, f"cannot start {sys.executable}: {exc.strerror or exc}")
         seconds = time.perf_counter() - start
         lines = done.stdout.strip().splitlines()
         try:
             said = json.loads(lines[-1]) if lines else {}
         except json.JSONDecodeError:
             said = {}
+        said = said if isinstance(said, dict) else {}
         if done.returncode == 0 and "error" not in said and out.is_file():
             return BackendRun(backend, seconds, said, np.load(out), "")
     error = (
