@@ -110,7 +110,7 @@ def renderer_checks(runs: dict[str, BackendRun], in_use: str) -> list[Check]:
                 f"renders{mark}: {f['render_ms']:.0f} ms per {run.image.shape[1]}² frame, first after "
                 f"{f['first_seconds']:.1f} s, {f['gl_renderer']}; process {run.seconds:.1f} s"
             )
-            checks.append(Check(name, "ok", summary, seconds=run.seconds, figures=f))
+            checks.append(Check(name, "ok", summary, seconds=round(run.seconds, 3), figures=f))
             continue
         others = [b for b in working if b != backend]
         instead = (
@@ -118,7 +118,9 @@ def renderer_checks(runs: dict[str, BackendRun], in_use: str) -> list[Check]:
         )
         fix = f"{FIXES.get(backend, 'check the backend name')}, {instead}"
         summary = f"fails{mark}: {run.error}"
-        checks.append(Check(name, "fail" if backend == in_use else "warn", summary, fix, run.seconds))
+        checks.append(
+            Check(name, "fail" if backend == in_use else "warn", summary, fix, round(run.seconds, 3))
+        )
     checks.append(compare_check(runs, in_use))
     return checks
 
