@@ -41,20 +41,58 @@ if [[ ! -x "$VENV/bin/python" ]]; then
 fi
 PIP=("$VENV/bin/python" -m pip install --disable-pip-version-check -q)
 
-# torch first, pinned to one release: the CPU build where no NVIDIA GPU is present. A bare `torch`
-# requirement would pull several GB of CUDA packages.
+# torch first, pinned to one release. Where no NVIDIA GPU is present: the CPU build (on Linux x86-64 pinned as
+# `+cpu`, so no resolve can fall back to the CUDA wheel of the default index, several GB). torch's CPU wheel index
+# is asked once, quickly (one try, a few seconds, in a subprocess a timeout ends): pip would retry an
+# unreachable index with back-off for torch and each of its dependencies. When it does not answer, the CPU
+# wheel comes from pip's configured sources (a mirror, PIP_FIND_LINKS); VLAPROBE_TORCH_INDEX names another
+# index ("" never asks one).
+TORCH=2.13.0
+TORCH_INDEX=${VLAPROBE_TORCH_INDEX-https://download.pytorch.org/whl/cpu}
+answers() {  # answers URL: the index serves its torch page in time (one try; `timeout` also bounds the DNS look-up)
+    local limit=()
+    command -v timeout >/dev/null && limit=(timeout 10)
+    "${limit[@]}" "$VENV/bin/python" - "$1" <<'PY' >/dev/null 2>&1
+import sys, urllib.request
+urllib.request.urlopen(sys.argv[1].rstrip("/") + "/torch/", timeout=5).close()
+PY
+}
 if ! "$VENV/bin/python" -c "import torch" 2>/dev/null; then
     if command -v nvidia-smi >/dev/null 2>&1; then
-        "${PIP[@]}" torch==2.13.0
+        "${PIP[@]}" "torch==$TORCH"
     else
-        "${PIP[@]}" torch==2.13.0 --extra-index-url https://download.pytorch.org/whl/cpu
+        spec="torch==$TORCH"
+        [[ "$(uname -sm)" == "Linux x86_64" ]] && spec="torch==$TORCH+cpu"
+        if [[ -n "$TORCH_INDEX" ]] && answers "$TORCH_INDEX"; then
+            "${PIP[@]}" "$spec" --extra-index-url "$TORCH_INDEX"
+        else
+            # The probe can miss a proxy only pip knows: then pip asks the index itself, with one retry.
+            echo "setup: ${TORCH_INDEX:-no torch index (VLAPROBE_TORCH_INDEX is empty)}${TORCH_INDEX:+ did not answer}; $spec from pip's configured sources"
+            "${PIP[@]}" "$spec" \
+                || { [[ -n "$TORCH_INDEX" ]] && "${PIP[@]}" --retries 1 "$spec" --extra-index-url "$TORCH_INDEX"; } \
+                || {
+                    echo "setup: $spec is in none of pip's sources; make the index ${TORCH_INDEX:-of torch CPU wheels} reachable, set VLAPROBE_TORCH_INDEX to a mirror of it, or put the wheel in a folder named by PIP_FIND_LINKS" >&2
+                    exit 1
+                }
+        fi
     fi
 fi
 
-# LIBERO and its simulator stack without their declared dependencies: libero 0.1.1 declares hydra, wandb,
-# transformers, robomimic, thop, einops, ... that `libero.libero` never imports. What it does import is
-# listed in pyproject.toml (with the mujoco pin and why).
-"${PIP[@]}" --no-deps libero==0.1.1 bddl==1.0.1 robosuite==1.4.0
+# LIBERO and its simulator stack, at the pins of pyproject.toml's `libero` extra (read from there: one source),
+# without their declared dependencies: libero 0.1.1 declares hydra, wandb, transformers, robomimic, thop, einops,
+# ... that `libero.libero` never imports. What it does import is in pyproject.toml's dependencies (with the
+# mujoco pin and why).
+mapfile -t libero_pins < <("$VENV/bin/python" - <<'PY'
+import re
+extra = re.search(r"^libero = \[(.*?)\]", open("pyproject.toml").read(), re.M | re.S)
+print("\n".join(re.findall(r'"([^"]+)"', extra.group(1))) if extra else "")
+PY
+)
+if [[ -z "${libero_pins[0]:-}" ]]; then
+    echo "setup: pyproject.toml has no \`libero = [...]\` extra; restore it" >&2
+    exit 1
+fi
+"${PIP[@]}" --no-deps "${libero_pins[@]}"
 
 # pip lists the packages libero declares but never imports (hydra, wandb, robomimic...) as missing: expected.
 "${PIP[@]}" -e ".[dev,ray]"

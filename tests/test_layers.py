@@ -25,6 +25,7 @@ ORDER = (
     "live",
     "results",
     "pipeline",
+    "doctor",
     "commands",
     "cli",
 )

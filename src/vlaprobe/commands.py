@@ -52,6 +52,7 @@ COMMANDS: dict[str, Command] = {
     "model-info": Command("vlaprobe.configs.policy:ModelInfoConfig", "vlaprobe.policies.openvla.commands:model_info", "Load a VLA policy and print its description (with --step: one timed step) as JSON."),
     "serve": Command("vlaprobe.configs.serve:ServeConfig", "vlaprobe.live.serve:main", "The live monitor: stream episodes (simulator, model, probes, cognition) over a WebSocket; record and replay."),
     "finetune": Command("vlaprobe.configs.finetune:FinetuneConfig", "vlaprobe.finetune.command:finetune", "Fine-tune an OpenVLA model (tiny or a checkpoint) on collected expert episodes with OpenVLA's objective."),
+    "doctor": Command("vlaprobe.configs.doctor:DoctorConfig", "vlaprobe.doctor.command:doctor", "Check and time what `vlaprobe run` needs on this machine (torch, pins, renderer, assets, model, disk); exit 0 when ready."),
     "save-tiny": Command("vlaprobe.configs.policy:SaveTinyConfig", "vlaprobe.policies.openvla.commands:save_tiny", "Write the seeded tiny OpenVLA as a checkpoint folder (config.json + model.safetensors)."),
 }  # fmt: skip
 """Every subcommand by name, in ``vlaprobe --help`` order."""
