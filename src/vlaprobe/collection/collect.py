@@ -30,6 +30,7 @@ from vlaprobe.configs.collect import CollectConfig
 from vlaprobe.envs.setup import resolve_assets
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject, check_output_folder, versions
+from vlaprobe.rollout.faults import FaultSpec
 from vlaprobe.rollout.perturb import PerturbSpec
 
 VOLATILE_MODEL_KEYS = ("device", "source")
@@ -73,6 +74,7 @@ def check_collect_suite(cfg: CollectConfig, prefix: str = "") -> None:
     check_tasks(cfg.tasks, cfg.env.suite, f"--{prefix}tasks")
     check_inits(cfg.env, cfg.tasks)
     PerturbSpec.parse(cfg.perturb, f"--{prefix}perturb")
+    FaultSpec.parse(cfg.expert_faults, f"--{prefix}expert-faults")
 
 
 def _validate(cfg: CollectConfig) -> None:
@@ -98,6 +100,8 @@ def _run_meta(cfg: CollectConfig) -> JsonObject:
     extra: JsonObject = {"inits": cfg.env.inits} if cfg.env.inits != "fixed" else {}
     if cfg.perturb:
         extra["perturb"] = PerturbSpec.parse(cfg.perturb).text()
+    if cfg.expert_faults:
+        extra["expert_faults"] = FaultSpec.parse(cfg.expert_faults).text()
     if cfg.driver == "dagger":
         extra["dagger_beta"] = cfg.dagger_beta
     return {

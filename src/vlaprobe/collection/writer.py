@@ -47,6 +47,7 @@ COMPATIBLE_KEYS = (
     "pooling",
     "driver",
     "dagger_beta",
+    "expert_faults",
     "suite",
     "env",
     "seed",
