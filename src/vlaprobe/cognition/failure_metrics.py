@@ -96,7 +96,7 @@ def weighted_auc(scores: np.ndarray, failed: np.ndarray, weights: np.ndarray | N
 
 def at_time(curves: Sequence[np.ndarray], tau: float) -> np.ndarray:
     """Each curve's value at row ⌊τ·(T-1)⌋ (normalised time τ in [0, 1])."""
-    return np.array([c[int(math.floor(tau * (len(c) - 1)))] for c in curves])
+    return np.array([c[math.floor(tau * (len(c) - 1))] for c in curves])
 
 
 def weighted_median(values: np.ndarray, weights: np.ndarray) -> float:

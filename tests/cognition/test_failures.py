@@ -1,0 +1,64 @@
+"""`vlaprobe failures` on synthetic episodes with known answers: a hidden state that carries the outcome is
+found by the probe, the file round-trips through its one writer and reader, too few failures are refused."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vlaprobe.cognition.failure_scores import FEATURES, EpisodeData
+from vlaprobe.cognition.failures import evaluate, read_failures, table, write_failures
+from vlaprobe.configs.failures import FailuresConfig
+from vlaprobe.errors import VlaprobeError
+
+
+def episodes(n: int, seed: int = 0) -> list[EpisodeData]:
+    """Half fail; a failure's hidden state drifts along one direction after its failure step, its progress
+    stops at 0.5; every episode lasts 40-60 rows (lengths independent of the outcome)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        failed, length = i % 2 == 1, int(rng.integers(40, 61))
+        step = int(rng.integers(5, 20)) if failed else None
+        hidden = rng.normal(size=(length, 16)).astype(np.float32)
+        progress = np.minimum(np.arange(length) / 30, 1.0)
+        if failed:
+            hidden[step:, 0] += 3.0
+            progress = np.minimum(progress, 0.5)
+        cols = np.zeros((length, len(FEATURES)))
+        out.append(
+            EpisodeData(f"e{i}", i % 3, failed, step, hidden, progress, cols, [()] * length, [""] * length)
+        )
+    return out
+
+
+def test_probe_finds_the_failure_direction_and_the_figures_round_trip(tmp_path: Path) -> None:
+    cfg = FailuresConfig(alpha=0.2, folds=3, bootstrap=100)
+    result = evaluate(episodes(36), cfg, "truth", 3)
+    by = {p.name: p for p in result.predictors}
+    assert result.episodes == 36 and result.failed == 18 and result.known_failure_steps == 18
+    assert by["probe"].auc["0.5"].value == 1.0 and by["cognition"].auc["1"].value == 1.0
+    time_auc = by["time"].auc["1"]
+    assert time_auc.low is not None and time_auc.high is not None and time_auc.low < 0.5 + 0.3
+    probe = by["probe"]
+    assert probe.detection_rate.value is not None and probe.detection_rate.value > 0.8
+    assert probe.lead_to_failure_step.value is not None and probe.lead_to_failure_step.value < 0
+    assert probe.false_alarm_rate.value is not None and probe.false_alarm_rate.value <= 0.5
+    assert sum(by["cognition"].alarm_drivers.values()) > 0 and not probe.alarm_drivers
+    write_failures(tmp_path, result)
+    assert read_failures(tmp_path) == result
+    assert "probe" in table(result)
+
+
+def test_too_few_failures_are_refused() -> None:
+    data = [e for e in episodes(20) if not e.failed] + [e for e in episodes(20) if e.failed][:2]
+    with pytest.raises(VlaprobeError, match="2 failed and 10 successful episodes; --folds 5"):
+        evaluate(data, FailuresConfig(), "truth", 3)
+
+
+def test_a_damaged_file_is_one_line(tmp_path: Path) -> None:
+    (tmp_path / "failures.json").write_text('{"format": "vlaprobe-failures", "format_version": 1}')
+    with pytest.raises(VlaprobeError, match="is damaged"):
+        read_failures(tmp_path)
