@@ -64,7 +64,7 @@ def test_release_gives_up_while_carrying_and_marks_the_failure_step() -> None:
     driver, actions = run(FaultSpec(release=1.0), phases)
     (mark,) = driver.marks
     assert mark.kind == "release" and driver.failure_step == mark.row
-    assert 3 + 2 <= mark.row < 3 + 11  # after 2-10 carried rows
+    assert 3 + 1 <= mark.row < 3 + 7  # after 1-5 carried rows
     assert np.all(actions[: mark.row] == [0.5] * 6 + [1.0])
     assert np.all(actions[mark.row :] == [0.0] * 6 + [-1.0])  # fingers open, holding still: no recovery
     again, _ = run(FaultSpec(release=1.0), phases)

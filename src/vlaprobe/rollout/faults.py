@@ -30,9 +30,9 @@ from vlaprobe.symbols import Goal, Scene, WorldState
 KINDS = ("noise", "release", "wrong_target", "no_recovery")
 """Fault kinds, in the order their draws are made."""
 GRIPPER_OPEN = -1.0
-RELEASE_AFTER = (2, 10)
-"""Range of carried rows (away from the target) after which a release happens."""
-RELEASE_AWAY = 0.12
+RELEASE_AFTER = (1, 6)
+"""Range of rows held (lifting or carrying, away from the target) after which a release happens."""
+RELEASE_AWAY = 0.10
 """Least horizontal distance (metres) of the carried object from the place target for a release."""
 LOW_TARGET = 0.12
 """Greatest height (metres) of a wrong target's top above the table (a plate, a box, a ramekin; no cabinet)."""
@@ -156,7 +156,7 @@ class FaultyExpert:
         if not self._gave_up:
             if self._no_recovery and phase == "regrasp":
                 self._give_up("no_recovery")
-            elif self._release and phase == "carry" and self._away():
+            elif self._release and phase in ("lift", "carry") and self._away():
                 self._carried += 1
                 if self._carried > self._release_after:
                     self._give_up("release")
