@@ -90,3 +90,20 @@ def test_noise_has_the_given_scale_and_is_seeded() -> None:
     assert abs(np.std(actions[:, :6] - 0.5) - 0.3) < 0.02 and np.all(actions[:, 6] == 1.0)
     assert np.array_equal(actions, run(FaultSpec(noise=0.3), phases)[1])
     assert not np.array_equal(actions, run(FaultSpec(noise=0.3), phases, seed=4)[1])
+
+
+def test_fault_marks_round_trip_through_the_episode_attributes() -> None:
+    from vlaprobe.collection.episode import EpisodeAttrs
+
+    attrs = EpisodeAttrs("put", SCENE, GOAL, faults=[FaultMark("release", 40)], failure_step=40)
+    assert EpisodeAttrs.from_json(attrs.to_json()) == attrs
+    plain = EpisodeAttrs("put", SCENE, GOAL)
+    assert "faults" not in plain.to_json() and EpisodeAttrs.from_json(plain.to_json()) == plain
+
+
+def test_collect_refuses_faults_without_the_expert_driver() -> None:
+    from vlaprobe.configs.checks import check_collect
+    from vlaprobe.configs.collect import CollectConfig
+
+    with pytest.raises(VlaprobeError, match="--expert-faults changes the scripted expert's actions"):
+        check_collect(CollectConfig(driver="policy", expert_faults="noise=0.1"))
