@@ -3,6 +3,7 @@ found by the probe, the file round-trips through its one writer and reader, too 
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -62,3 +63,42 @@ def test_a_damaged_file_is_one_line(tmp_path: Path) -> None:
     (tmp_path / "failures.json").write_text('{"format": "vlaprobe-failures", "format_version": 1}')
     with pytest.raises(VlaprobeError, match="is damaged"):
         read_failures(tmp_path)
+
+
+def test_the_command_on_a_written_store_with_and_without_probes(tmp_path: Path) -> None:
+    """Failures stall at the carry (the cognition's stall and progress deficit see it) and run longer."""
+    from tests.cognition.test_monitor import APPROACH, ATOMS, CARRY, PLACED, PLATE, arrays, write_run
+
+    from vlaprobe.cognition.failures import main
+    from vlaprobe.collection.store import EpisodeInfo
+    from vlaprobe.collection.writer import StoreWriter
+
+    _, probes = write_run(tmp_path / "run")  # probes that read the labels back from the hidden state
+    meta = {
+        "atom_names": ATOMS, "model_id": "fake", "model": {"model_id": "fake"}, "num_hidden_states": 2,
+        "hidden_size": sum(len(v) for v in ATOMS.values()), "pooling": "last_prompt", "driver": "expert",
+        "suite": "libero_spatial", "env": {}, "seed": 0,
+    }  # fmt: skip
+    rng = np.random.default_rng(0)
+    with StoreWriter.open(tmp_path / "store", meta) as writer:
+        for i in range(12):
+            failed = i % 2 == 1
+            steps = [APPROACH] * 5 + [CARRY] * (25 if failed else 6) + ([] if failed else [PLACED] * 4)
+            y = np.array([np.concatenate(arrays(s)) for s in steps])
+            x = (y * 2.0 - 1 + rng.normal(0, 0.1, y.shape)).astype(np.float16)
+            info = EpisodeInfo(f"t00_i{i:02d}_a00", 0, i, 0, not failed, len(y), i, "expert")
+            n = len(ATOMS["object"])
+            cols = {"hidden": np.stack([x, x]), "object_atoms": y[:, :n], "action_atoms": y[:, n:]}
+            attrs = {
+                "goal": {"pick": "akita_black_bowl_1", "place": PLATE},
+                "failure_step": 10 if failed else None,
+            }
+            writer.write_episode(info, cols, attrs)
+    for extra in ({}, {"probes": probes}):
+        cfg = FailuresConfig(store=tmp_path / "store", out=tmp_path / "out", folds=2, alpha=0.3, bootstrap=50)
+        assert main(dataclasses.replace(cfg, **extra)) == 0
+        result = read_failures(tmp_path / "out")
+        assert result.episodes == 12 and result.failed == 6 and result.known_failure_steps == 6
+        assert result.atoms == ("truth" if not extra else str(probes)) and result.layer == 1
+        cognition = next(p for p in result.predictors if p.name == "cognition")
+        assert cognition.auc["1"].value == 1.0
