@@ -30,6 +30,7 @@ from vlaprobe.configs.failures import FailuresConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import from_json, read_versioned, write_atomic
 from vlaprobe.probes.bootstrap import bootstrap_weights, interval
+from vlaprobe.probes.store_compare import Estimate
 
 FAILURES_FILE = "failures.json"
 FORMAT, VERSION = "vlaprobe-failures", 1
@@ -38,30 +39,21 @@ TIMES = (0.25, 0.5, 0.75, 1.0)
 
 
 @dataclass(frozen=True)
-class Figure:
-    """A figure with its 95% episode-bootstrap interval (None where undefined)."""
-
-    value: float | None
-    low: float | None
-    high: float | None
-
-
-@dataclass(frozen=True)
 class PredictorFigures:
     """One predictor's figures over all episodes (out of fold)."""
 
     name: str
-    auc: dict[str, Figure]
+    auc: dict[str, Estimate]
     """Normalised time ("0.25", ...) -> ROC-AUC of the running score there, failures against successes."""
-    detection_rate: Figure
+    detection_rate: Estimate
     """Share of failed episodes with an alarm before their last row."""
-    lead_to_end: Figure
+    lead_to_end: Estimate
     """Median over detected failures of the steps from the first alarm to the episode's last row."""
-    lead_to_failure_step: Figure
+    lead_to_failure_step: Estimate
     """Median over detected failures with a known failure step of (failure step - first alarm); > 0: before."""
-    false_alarm_rate: Figure
+    false_alarm_rate: Estimate
     """Share of successful episodes with an alarm (the conformal band's target: alpha)."""
-    false_alarms_per_100_steps: Figure
+    false_alarms_per_100_steps: Estimate
     """Alarms raised (rows crossing the band) per 100 rows of successful episodes."""
     alarm_drivers: dict[str, int]
     """cognition only: the feature with the largest term at each first alarm, and "rule:<id>" for each rule
@@ -91,13 +83,13 @@ class FailuresResult:
     """The cognition score's coefficients (standardised features), fitted on every episode."""
 
 
-def _fig(value: float, resampled: np.ndarray) -> Figure:
+def _fig(value: float, resampled: np.ndarray) -> Estimate:
     low, high = interval(resampled)
 
     def clean(x: float) -> float | None:
         return None if not np.isfinite(x) else round(float(x), 4)
 
-    return Figure(clean(value), clean(low), clean(high))
+    return Estimate(clean(value), clean(low), clean(high))
 
 
 @dataclass
@@ -181,12 +173,12 @@ def predictor_figures(
     alarmed = np.array([a is not None and a < n for a, n in zip(s.alarms, last, strict=True)])
     fails, wins = failed.astype(float), (~failed).astype(float)
 
-    def share(mask: np.ndarray, of: np.ndarray) -> Figure:
+    def share(mask: np.ndarray, of: np.ndarray) -> Estimate:
         num, den = weights @ (mask * of), weights @ of
         with np.errstate(invalid="ignore", divide="ignore"):
             return _fig(float((mask * of).sum() / max(of.sum(), 1)), np.where(den > 0, num / den, np.nan))
 
-    def median(values: np.ndarray, keep: np.ndarray) -> Figure:
+    def median(values: np.ndarray, keep: np.ndarray) -> Estimate:
         v = np.where(keep, values, 0.0)
         return _fig(
             weighted_median(v[keep], np.ones(int(keep.sum()))),
@@ -266,7 +258,7 @@ def read_failures(folder: str | Path) -> FailuresResult:
 def table(result: FailuresResult) -> str:
     """The figures as lines for people."""
 
-    def f(x: Figure) -> str:
+    def f(x: Estimate) -> str:
         if x.value is None:
             return "n/a"
         return f"{x.value:.3g} [{'n/a' if x.low is None else f'{x.low:.3g}'}, {'n/a' if x.high is None else f'{x.high:.3g}'}]"

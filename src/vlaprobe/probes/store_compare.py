@@ -36,7 +36,8 @@ FILE = "store_comparison.json"
 
 @dataclass(frozen=True)
 class Estimate:
-    """A mean balanced accuracy (or a difference of two) with its 95% bootstrap interval."""
+    """A figure (a mean balanced accuracy, a difference of two, a failure predictor's ROC-AUC, ...) with its 95%
+    bootstrap interval (None where undefined)."""
 
     value: float | None
     low: float | None

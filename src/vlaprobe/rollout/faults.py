@@ -25,6 +25,7 @@ import numpy as np
 
 from vlaprobe.envs.base import TaskEnv
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.rollout.perturb import parse_kinds
 from vlaprobe.symbols import Goal, Scene, WorldState
 
 KINDS = ("noise", "release", "wrong_target", "no_recovery")
@@ -50,25 +51,7 @@ class FaultSpec:
     @classmethod
     def parse(cls, text: str, flag: str = "--expert-faults") -> FaultSpec:
         """``"kind=value,..."`` with kinds from :data:`KINDS`; probabilities in [0, 1], noise ≥ 0."""
-        values: dict[str, float] = {}
-        for part in filter(None, (p.strip() for p in text.split(","))):
-            kind, sep, value = part.partition("=")
-            kind = kind.strip().replace("-", "_")
-            if kind not in KINDS:
-                raise VlaprobeError(
-                    f"{flag}: unknown fault {kind!r}; use kind=value with kinds {', '.join(KINDS)}"
-                    " (e.g. noise=0.3,release=0.2)"
-                )
-            try:
-                v = float(value) if sep else float("nan")
-            except ValueError:
-                v = float("nan")
-            top = float("inf") if kind == "noise" else 1.0
-            if not 0.0 <= v <= top:
-                what = "a scale ≥ 0" if kind == "noise" else "a probability in [0, 1]"
-                raise VlaprobeError(f"{flag}: {kind} needs {what}, got {value.strip()!r}")
-            values[kind] = v
-        return cls(**values)
+        return cls(**parse_kinds(text, flag, "fault", KINDS, "noise=0.3,release=0.2", scales=("noise",)))
 
     @property
     def any(self) -> bool:
