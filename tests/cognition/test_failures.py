@@ -102,3 +102,22 @@ def test_the_command_on_a_written_store_with_and_without_probes(tmp_path: Path) 
         assert result.atoms == ("truth" if not extra else str(probes)) and result.layer == 1
         cognition = next(p for p in result.predictors if p.name == "cognition")
         assert cognition.auc["1"].value == 1.0
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--alpha", "1.5"], "--alpha must be between 0 and 1, got 1.5"),
+        (["--folds", "1"], "--folds needs at least 2"),
+        (["--store", "nowhere"], "no activation store at nowhere"),
+    ],
+)
+def test_bad_input_is_a_one_line_error(
+    args: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from vlaprobe.cli import main as cli_main
+
+    assert cli_main(["failures", "--out", str(tmp_path / "out"), *args]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert not (tmp_path / "out" / "failures.json").exists()
