@@ -29,8 +29,7 @@ from vlaprobe.cognition.failure_scores import FEATURES, PREDICTORS, EpisodeData,
 from vlaprobe.configs.failures import FailuresConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import from_json, read_versioned, write_atomic
-from vlaprobe.probes.bootstrap import bootstrap_weights, interval
-from vlaprobe.probes.store_compare import Estimate
+from vlaprobe.probes.bootstrap import Estimate, bootstrap_weights, interval
 
 FAILURES_FILE = "failures.json"
 FORMAT, VERSION = "vlaprobe-failures", 1
