@@ -13,6 +13,7 @@ import json
 from collections import Counter
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -30,6 +31,9 @@ from vlaprobe.configs.failures import FailuresConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import from_json, read_versioned, write_atomic
 from vlaprobe.probes.bootstrap import Estimate, bootstrap_weights, interval
+
+if TYPE_CHECKING:
+    from vlaprobe.reports.sections import Section
 
 FAILURES_FILE = "failures.json"
 FORMAT, VERSION = "vlaprobe-failures", 1
@@ -279,6 +283,23 @@ def table(result: FailuresResult) -> str:
             lines.append(f"{'':10s} alarm drivers {p.alarm_drivers}")
     lines.append(f"token uncertainty: {result.token_uncertainty}")
     return "\n".join(lines)
+
+
+def report_section(probes: Path) -> Section | None:
+    """The report's failure-prediction section when ``failures.json`` is in the probe folder (``vlaprobe
+    failures --out`` that folder), else None; it renders ``templates/failures_section.html`` of this package."""
+    if not (Path(probes) / FAILURES_FILE).is_file():
+        return None
+    from vlaprobe.reports.sections import Section
+
+    data = asdict(read_failures(probes))
+    return Section(
+        id="failures",
+        title="Failure prediction",
+        template="failures_section.html",
+        data=data,
+        package="vlaprobe.cognition",
+    )
 
 
 def load_episodes(cfg: FailuresConfig) -> tuple[list[EpisodeData], str, int]:
