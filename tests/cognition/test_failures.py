@@ -41,6 +41,9 @@ def test_probe_finds_the_failure_direction_and_the_figures_round_trip(tmp_path: 
     by = {p.name: p for p in result.predictors}
     assert result.episodes == 36 and result.failed == 18 and result.known_failure_steps == 18
     assert by["probe"].auc["0.5"].value == 1.0 and by["cognition"].auc["1"].value == 1.0
+    assert by["time"].auc_at_step["25"].value == 0.5  # at one step, time alone cannot tell
+    assert by["time"].auc_at_step["100"].value is None  # no episode runs that long
+    assert by["probe"].auc_at_step["50"].value == 1.0
     time_auc = by["time"].auc["1"]
     assert time_auc.low is not None and time_auc.high is not None and time_auc.low < 0.5 + 0.3
     probe = by["probe"]

@@ -39,6 +39,8 @@ FAILURES_FILE = "failures.json"
 FORMAT, VERSION = "vlaprobe-failures", 1
 TIMES = (0.25, 0.5, 0.75, 1.0)
 """Normalised times of the ROC-AUCs."""
+STEPS = (25, 50, 100)
+"""Steps of the length-free ROC-AUCs."""
 
 
 @dataclass(frozen=True)
@@ -48,6 +50,9 @@ class PredictorFigures:
     name: str
     auc: dict[str, Estimate]
     """Normalised time ("0.25", ...) -> ROC-AUC of the running score there, failures against successes."""
+    auc_at_step: dict[str, Estimate]
+    """Step ("25", ...) -> ROC-AUC of the running score there over the episodes still running: free of the
+    episodes' lengths (failures run to the step limit, successes end early), where time alone scores 0.5."""
     detection_rate: Estimate
     """Share of failed episodes with an alarm before their last row."""
     lead_to_end: Estimate
@@ -172,6 +177,14 @@ def predictor_figures(
         auc[f"{tau:g}"] = _fig(
             weighted_auc(x, failed), np.array([weighted_auc(x, failed, w) for w in weights])
         )
+    at_step = {}
+    for step in STEPS:
+        alive = np.array([e.length > step for e in data])
+        x = np.array([r[step] if e.length > step else 0.0 for r, e in zip(s.running, data, strict=True)])
+        at_step[str(step)] = _fig(
+            weighted_auc(x[alive], failed[alive]),
+            np.array([weighted_auc(x[alive], failed[alive], w[alive]) for w in weights]),
+        )
     last = np.array([e.length - 1 for e in data])
     alarmed = np.array([a is not None and a < n for a, n in zip(s.alarms, last, strict=True)])
     fails, wins = failed.astype(float), (~failed).astype(float)
@@ -198,6 +211,7 @@ def predictor_figures(
     return PredictorFigures(
         name=name,
         auc=auc,
+        auc_at_step=at_step,
         detection_rate=share(alarmed, fails),
         lead_to_end=median(to_end, failed & alarmed),
         lead_to_failure_step=median(np.nan_to_num(fstep) - first, known),
@@ -273,6 +287,7 @@ def table(result: FailuresResult) -> str:
     ]
     for p in result.predictors:
         aucs = "  ".join(f"AUC@{t} {f(v)}" for t, v in p.auc.items())
+        aucs += "  " + "  ".join(f"AUC@step{t} {f(v)}" for t, v in p.auc_at_step.items())
         lines.append(f"{p.name:10s} {aucs}")
         lines.append(
             f"{'':10s} detected {f(p.detection_rate)}  lead to end {f(p.lead_to_end)}  lead to failure step "
