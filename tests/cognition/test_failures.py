@@ -127,20 +127,13 @@ def test_bad_input_is_a_one_line_error(
 
 
 def test_the_report_shows_the_failures_section(tmp_path: Path) -> None:
+    from tests.probes.made import probes_for_report
+
     from vlaprobe.cognition.failures import report_section
     from vlaprobe.configs.report import ReportConfig
-    from vlaprobe.configs.train import ProbeConfig, TrainConfig
     from vlaprobe.pipeline import report
-    from vlaprobe.probes import synthetic_data, train_on_data
 
-    data = synthetic_data(
-        num_tasks=2, episodes_per_task=3, steps_per_episode=10, num_layers=2, hidden_size=8, num_object=6,
-        num_action=2, seed=0,
-    )  # fmt: skip
-    fast = TrainConfig(
-        bootstrap=5, auprc_bootstrap=0, shuffled_permutations=1, probe=ProbeConfig(c_grid=(0.1,), max_iter=50)
-    )
-    probes = train_on_data(data, fast, tmp_path / "probes")
+    probes = probes_for_report(tmp_path / "probes")
     assert report_section(probes) is None
     result = evaluate(episodes(24), FailuresConfig(alpha=0.3, folds=2, bootstrap=20), "truth", 3)
     write_failures(probes, result)
