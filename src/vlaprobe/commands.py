@@ -49,6 +49,7 @@ COMMANDS: dict[str, Command] = {
     "compare-stores": Command("vlaprobe.configs.stores:CompareStoresConfig", "vlaprobe.probes.store_compare:main", "Stores side by side: task and task x time baselines, distinct states, atoms varying within episodes."),
     "report": Command("vlaprobe.configs.report:ReportConfig", "vlaprobe.pipeline:report_main", "Write the heatmap, curves and HTML page."),
     "cognition": Command("vlaprobe.configs.monitor:MonitorConfig", "vlaprobe.cognition.monitor:main", "The offline cognition evaluation: beliefs, rules, subgoals on stored episodes, truth vs probe predictions."),
+    "failures": Command("vlaprobe.configs.failures:FailuresConfig", "vlaprobe.cognition.failures:main", "Failure prediction on stored episodes: cognition, hidden-state probe, time baselines; conformal alarms."),
     "model-info": Command("vlaprobe.configs.policy:ModelInfoConfig", "vlaprobe.policies.openvla.commands:model_info", "Load a VLA policy and print its description (with --step: one timed step) as JSON."),
     "serve": Command("vlaprobe.configs.serve:ServeConfig", "vlaprobe.live.serve:main", "The live monitor: stream episodes (simulator, model, probes, cognition) over a WebSocket; record and replay."),
     "finetune": Command("vlaprobe.configs.finetune:FinetuneConfig", "vlaprobe.finetune.command:finetune", "Fine-tune an OpenVLA model (tiny or a checkpoint) on collected expert episodes with OpenVLA's objective."),

@@ -127,12 +127,14 @@ def _run(cfg: RunConfig) -> Path:
 
 
 def report(cfg: ReportConfig) -> Path:
-    """``vlaprobe report``: the report page with the offline cognition evaluation's section when the probe folder has one."""
+    """``vlaprobe report``: the report page with the offline cognition evaluation's and the failure prediction's
+    sections when the probe folder has their files."""
+    from vlaprobe.cognition.failures import report_section as failures_section
     from vlaprobe.cognition.monitor import report_section
     from vlaprobe.reports.report import write_report
 
-    section = report_section(Path(cfg.probes))
-    return write_report(cfg, sections=[section] if section is not None else [])
+    found = [report_section(Path(cfg.probes)), failures_section(Path(cfg.probes))]
+    return write_report(cfg, sections=[s for s in found if s is not None])
 
 
 def report_main(cfg: ReportConfig) -> int:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 from tests.cognition.scenes import APPROACH, BOWL2, CARRY, COOKIES, PLACED, PLATE, VOCAB, arrays
-from tests.probes.made import evaluation_with_split
+from tests.probes.made import evaluation_with_split, probes_for_report
 
 from vlaprobe.cli import main as cli_main
 from vlaprobe.cognition.monitor import (
@@ -26,10 +26,8 @@ from vlaprobe.collection.store import EpisodeInfo
 from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.configs.monitor import MonitorConfig
 from vlaprobe.configs.report import ReportConfig
-from vlaprobe.configs.train import ProbeConfig, TrainConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.pipeline import report
-from vlaprobe.probes import synthetic_data, train_on_data
 from vlaprobe.probes.probemeta import HeadMeta, ProbesMeta
 from vlaprobe.probes.probeset import ProbeSet
 from vlaprobe.probes.results import DroppedAtom, write_evaluation
@@ -187,14 +185,7 @@ def test_the_report_shows_the_monitor_section(run: tuple[Path, Path], tmp_path: 
     """The section as the report renders it: a probe folder holding monitor.json gets the cognition section."""
     store, probes = run
     result = monitor(MonitorConfig(store=store, probes=probes, out=tmp_path / "monitor"))
-    data = synthetic_data(
-        num_tasks=2, episodes_per_task=3, steps_per_episode=10, num_layers=2, hidden_size=8, num_object=6,
-        num_action=2, seed=0,
-    )  # fmt: skip
-    fast = TrainConfig(
-        bootstrap=5, auprc_bootstrap=0, shuffled_permutations=1, probe=ProbeConfig(c_grid=(0.1,), max_iter=50)
-    )
-    report_probes = train_on_data(data, fast, tmp_path / "probes")
+    report_probes = probes_for_report(tmp_path / "probes")
     assert report_section(report_probes) is None  # no monitor.json: no section
     (report_probes / MONITOR_FILE).write_bytes((tmp_path / "monitor" / MONITOR_FILE).read_bytes())
     section = report_section(report_probes)  # what the report's section provider finds in a probe folder

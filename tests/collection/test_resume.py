@@ -129,6 +129,12 @@ CASES: dict[str, tuple[dict[str, Any], dict[str, Any], str, Any]] = {
         "--dagger-beta is 0.5 in the store but 0.2",
         None,
     ),
+    "expert_faults": (
+        {},  # the fake expert cannot be faulted: the store is written without faults
+        {"expert_faults": "release=0.5"},
+        '--expert-faults is "" in the store but "release=0.5"',
+        None,
+    ),
     "suite": ({}, {"env": EnvConfig(suite="libero_object", max_steps=6, image_size=16)}, "--env.suite", None),
     "env": (
         {},

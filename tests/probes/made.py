@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from vlaprobe.probes.results import (
     BestLayer,
     Bootstrap,
@@ -79,3 +81,18 @@ def head_result(predicates: list[str], values: list[list[float]], best: int, lay
         probe={"balanced_accuracy": summary},
         baseline={"balanced_accuracy": summary},
     )
+
+
+def probes_for_report(folder: Path) -> Path:
+    """A small probe folder trained on synthetic data (seconds), for tests that render the report page."""
+    from vlaprobe.configs.train import ProbeConfig, TrainConfig
+    from vlaprobe.probes import synthetic_data, train_on_data
+
+    data = synthetic_data(
+        num_tasks=2, episodes_per_task=3, steps_per_episode=10, num_layers=2, hidden_size=8, num_object=6,
+        num_action=2, seed=0,
+    )  # fmt: skip
+    fast = TrainConfig(
+        bootstrap=5, auprc_bootstrap=0, shuffled_permutations=1, probe=ProbeConfig(c_grid=(0.1,), max_iter=50)
+    )
+    return train_on_data(data, fast, folder)

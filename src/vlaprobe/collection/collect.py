@@ -33,6 +33,7 @@ from vlaprobe.envs.setup import resolve_assets
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject, check_output_folder, versions
 from vlaprobe.locks import FolderLock, lock_folder
+from vlaprobe.rollout.faults import FaultSpec
 from vlaprobe.rollout.perturb import PerturbSpec
 
 VOLATILE_MODEL_KEYS = ("device", "source")
@@ -76,6 +77,7 @@ def check_collect_suite(cfg: CollectConfig, prefix: str = "") -> None:
     check_tasks(cfg.tasks, cfg.env.suite, f"--{prefix}tasks")
     check_inits(cfg.env, cfg.tasks)
     PerturbSpec.parse(cfg.perturb, f"--{prefix}perturb")
+    FaultSpec.parse(cfg.expert_faults, f"--{prefix}expert-faults")
 
 
 def _validate(cfg: CollectConfig) -> None:
@@ -104,6 +106,8 @@ def _run_meta(cfg: CollectConfig) -> JsonObject:
         extra["layouts"] = LAYOUTS
     if cfg.perturb:
         extra["perturb"] = PerturbSpec.parse(cfg.perturb).text()
+    if cfg.expert_faults:
+        extra["expert_faults"] = FaultSpec.parse(cfg.expert_faults).text()
     if cfg.driver == "dagger":
         extra["dagger_beta"] = cfg.dagger_beta
     return {

@@ -17,6 +17,7 @@ import numpy as np
 
 from vlaprobe.files import Json, JsonObject
 from vlaprobe.rollout import StepRecord
+from vlaprobe.rollout.faults import FaultMark
 from vlaprobe.rollout.perturb import KIND_CODE
 from vlaprobe.symbols import Articulation, Goal, Scene, WorldState
 
@@ -180,6 +181,12 @@ class EpisodeAttrs:
     """``--inits sampled-swap``: object -> the table region it started in, where it differs from the BDDL."""
     perturbations: list[PerturbationMark] | None = None
     """The perturbations that happened (``--perturb``); None: collected without."""
+    faults: list[FaultMark] | None = None
+    """The faults injected into the expert that hit this episode (``--expert-faults``); None: collected
+    without."""
+    failure_step: int | None = None
+    """The row from which the episode's failure was certain (an injected fault: the expert gave up or let go on
+    a wrong target); None where unknown."""
     extra: JsonObject = field(default_factory=dict)
     """Attributes of other writers, kept as read."""
 
@@ -197,6 +204,9 @@ class EpisodeAttrs:
                 out[name] = getattr(self, name)
         if self.perturbations is not None:
             out["perturbations"] = [{"kind": p.kind, "row": p.row} for p in self.perturbations]
+        if self.faults is not None:
+            out["faults"] = [{"kind": f.kind, "row": f.row} for f in self.faults]
+            out["failure_step"] = self.failure_step
         return {**out, **self.extra}
 
     @classmethod
@@ -207,7 +217,7 @@ class EpisodeAttrs:
         scene = _scene(attrs["scene"]) if "scene" in attrs else None
         goal = Goal(**attrs["goal"]) if "goal" in attrs else None
         known = {f.name for f in dataclasses.fields(cls)} | {f.name for f in dataclasses.fields(EpisodeInfo)}
-        marks = attrs.get("perturbations")
+        marks, faults = attrs.get("perturbations"), attrs.get("faults")
         return cls(
             instruction=str(attrs.get("instruction", "")),
             scene=scene,
@@ -221,6 +231,8 @@ class EpisodeAttrs:
             perturbations=None
             if marks is None
             else [PerturbationMark(str(m["kind"]), int(m["row"])) for m in marks],
+            faults=None if faults is None else [FaultMark(str(m["kind"]), int(m["row"])) for m in faults],
+            failure_step=None if attrs.get("failure_step") is None else int(attrs["failure_step"]),
             extra={k: v for k, v in attrs.items() if k not in known},
         )
 

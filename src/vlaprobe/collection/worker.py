@@ -34,6 +34,7 @@ from vlaprobe.rollout import (
     SuccessTracker,
     make_driver,
 )
+from vlaprobe.rollout.faults import FaultSpec, FaultyExpert
 from vlaprobe.rollout.perturb import KIND_CODE, Perturber, PerturbSpec
 from vlaprobe.rollout.runner import MakeDriver, default_threads
 from vlaprobe.symbols.vocabulary import atom
@@ -191,6 +192,7 @@ class Worker:
             post_success_steps=self.cfg.post_success_steps,
             control=control,
             beta=self.cfg.dagger_beta,
+            faults=FaultSpec.parse(self.cfg.expert_faults),
         )
         start = time.perf_counter()
         rows, track, done = StepRows(), _Outcome(env, perturber, control), []
@@ -215,6 +217,8 @@ class Worker:
         )
         steps = rows.steps(track.codes if perturber is not None else None)
         attrs = _episode_attrs(env, perturber, round(seconds, 3))
+        if isinstance(faulty := self.runner.driver, FaultyExpert):
+            attrs.faults, attrs.failure_step = list(faulty.marks), faulty.failure_step
         return EpisodeResult(info, steps, attrs, seconds, track.label_seconds, build, build_seconds)
 
     def close(self) -> None:

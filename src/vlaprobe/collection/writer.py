@@ -50,6 +50,7 @@ DEFINING = (
     Setting("pooling", "--pooling"),
     Setting("driver", "--driver"),
     Setting("dagger_beta", "--dagger-beta", 0.0),
+    Setting("expert_faults", "--expert-faults", ""),
     Setting("suite", "--env.suite"),
     Setting("env", "--env"),
     Setting("seed", "--seed"),

@@ -195,6 +195,10 @@ def check_collect(cfg: CollectConfig, prefix: str = "") -> None:
         raise VlaprobeError(
             f"{f('dagger_beta')} applies to --driver dagger only; drop it or add --driver dagger"
         )
+    if cfg.expert_faults and cfg.driver != "expert":
+        raise VlaprobeError(
+            f"{f('expert_faults')} changes the scripted expert's actions; use it with --driver expert"
+        )
     if not (math.isfinite(cfg.ray_gpus_per_worker) and cfg.ray_gpus_per_worker >= 0):
         raise VlaprobeError(f"{f('ray_gpus_per_worker')} must be 0 or more, got {cfg.ray_gpus_per_worker}")
     check_env(cfg.env, prefix + "env.")

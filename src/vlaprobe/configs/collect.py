@@ -54,6 +54,13 @@ class CollectConfig:
     before it is grasped; knock_off: it is moved off its target after placement. Drawn from the episode's seed;
     the expert recovers (re-grasps); perturbed rows and episodes are marked in the store (docs/collection.md).
     Default: none."""
+    expert_faults: str = ""
+    """Faults injected into the scripted expert (--driver expert), natural failures from one driver:
+    "noise=0.3,release=0.2,wrong_target=0.2,no_recovery=0.5". noise: Gaussian noise of that standard deviation
+    on the expert's motion actions; release: the gripper opens while carrying and the expert gives up;
+    wrong_target: the object is placed on another object; no_recovery: the expert gives up instead of
+    re-grasping. Probabilities per episode, drawn from its seed; marked per episode with the row from which the
+    failure was certain (docs/failures.md). Add --keep-failed to store the failures. Default: none."""
     keep_failed: bool = False
     """Also store failed episodes (marked success=false) instead of only recording that they were tried."""
     workers: int = 1

@@ -109,6 +109,7 @@ class ScriptedExpert:
     def reset(self) -> None:
         """Start a new episode (call after ``env.reset``)."""
         self.rng = np.random.default_rng(self.seed)
+        self._place = self.env.scene.tabletop.index(self.env.goal.place)  # undo a retarget
         self.phase = "approach"
         self._side: np.ndarray | None = None  # unit vector from the object's centre to the grasp side
         self._depth = GRASP_DEPTHS[0]  # grasp depth below the rim
@@ -285,6 +286,10 @@ class ScriptedExpert:
         lo, hi = state.aabb_lo[self._pick], state.aabb_hi[self._pick]
         outside = np.linalg.norm(np.maximum(np.maximum(lo - pos, pos - hi), 0.0))
         return bool(opening > MIN_OPENING and outside < LOST_DISTANCE)
+
+    def retarget(self, name: str) -> None:
+        """Place the object on tabletop object ``name`` instead of the goal's (a fault: ``--expert-faults``)."""
+        self._place = self.env.scene.tabletop.index(name)
 
     def act(self) -> np.ndarray:
         """The (7,) action for the current simulator state."""

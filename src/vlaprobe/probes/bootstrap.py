@@ -19,12 +19,24 @@ Plain numpy (no torch), so the cognition layer can use it too.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 INTERVAL = (2.5, 97.5)
 """Percentiles of the 95% interval."""
 MIN_DEFINED = 2
 """Fewest resamples defining a figure for it to get an interval."""
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A figure (a mean balanced accuracy, a difference of two, a failure predictor's ROC-AUC, ...) with its 95%
+    bootstrap interval (None where undefined)."""
+
+    value: float | None
+    low: float | None
+    high: float | None
 
 
 def bootstrap_weights(num_groups: int, resamples: int, seed: int) -> np.ndarray:

@@ -26,21 +26,12 @@ from vlaprobe.configs.stores import CompareStoresConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject, from_json, read_versioned, write_atomic
 from vlaprobe.probes.baselines import BASELINES, predict_baselines
-from vlaprobe.probes.bootstrap import bootstrap_weights, interval
+from vlaprobe.probes.bootstrap import Estimate, bootstrap_weights, interval
 from vlaprobe.probes.metrics import atom_metrics, layer_means
 from vlaprobe.probes.split import filter_labels, rows_of, split_episodes
 from vlaprobe.symbols import HEADS
 
 FILE = "store_comparison.json"
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """A mean balanced accuracy (or a difference of two) with its 95% bootstrap interval."""
-
-    value: float | None
-    low: float | None
-    high: float | None
 
 
 @dataclass(frozen=True)

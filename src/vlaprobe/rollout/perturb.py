@@ -39,6 +39,34 @@ KNOCK_DISTANCE = (0.12, 0.22)
 """Distance range (metres) of a knocked-off object's landing spot from the place target's origin."""
 
 
+def parse_kinds(
+    text: str, flag: str, noun: str, kinds: tuple[str, ...], example: str, scales: tuple[str, ...] = ()
+) -> dict[str, float]:
+    """``"kind=value,..."`` (``-`` or ``_`` in kinds) as {kind: value}: probabilities in [0, 1], or for the
+    kinds in ``scales`` any value ≥ 0; a one-line error naming ``flag`` otherwise."""
+    values: dict[str, float] = {}
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        kind, sep, value = part.partition("=")
+        kind = kind.strip().replace("-", "_")
+        if kind not in kinds:
+            use = "kind=probability" if not scales else "kind=value"
+            raise VlaprobeError(
+                f"{flag}: unknown {noun} {kind!r}; use {use} with kinds {', '.join(kinds)} (e.g. {example})"
+            )
+        try:
+            v = float(value) if sep else float("nan")
+        except ValueError:
+            v = float("nan")
+        top = float("inf") if kind in scales else 1.0
+        if not 0.0 <= v <= top:
+            what = "a scale ≥ 0" if kind in scales else "a probability in [0, 1]"
+            raise VlaprobeError(f"{flag}: {kind} needs {what}, got {value.strip()!r}")
+        if kind in values:
+            raise VlaprobeError(f"{flag}: {kind} is given twice ({values[kind]:g} and {v:g}); give each kind once")
+        values[kind] = v
+    return values
+
+
 @dataclass(frozen=True)
 class PerturbSpec:
     """Probability per episode of each perturbation kind (``--perturb drop=0.5,knock_off=0.3``)."""
@@ -50,27 +78,7 @@ class PerturbSpec:
     @classmethod
     def parse(cls, text: str, flag: str = "--perturb") -> PerturbSpec:
         """``"kind=p,kind=p"`` with kinds from :data:`KINDS` and p in [0, 1]; "" is no perturbation."""
-        values: dict[str, float] = {}
-        for part in filter(None, (p.strip() for p in text.split(","))):
-            kind, sep, value = part.partition("=")
-            kind = kind.strip().replace("-", "_")
-            if kind not in KINDS:
-                raise VlaprobeError(
-                    f"{flag}: unknown perturbation {kind!r}; use kind=probability with kinds {', '.join(KINDS)}"
-                    " (e.g. drop=0.5,knock_off=0.3)"
-                )
-            try:
-                p = float(value) if sep else float("nan")
-            except ValueError:
-                p = float("nan")
-            if not 0.0 <= p <= 1.0:
-                raise VlaprobeError(f"{flag}: {kind} needs a probability in [0, 1], got {value.strip()!r}")
-            if kind in values:
-                raise VlaprobeError(
-                    f"{flag}: {kind} is given twice ({values[kind]:g} and {p:g}); give each kind once"
-                )
-            values[kind] = p
-        return cls(**values)
+        return cls(**parse_kinds(text, flag, "perturbation", KINDS, "drop=0.5,knock_off=0.3"))
 
     @property
     def any(self) -> bool:

@@ -19,6 +19,7 @@ from vlaprobe.configs.collect import DriverName
 from vlaprobe.envs.base import TaskEnv
 from vlaprobe.policies.base import VLAPolicy
 from vlaprobe.rollout.drivers import Driver, make_driver
+from vlaprobe.rollout.faults import FaultSpec, with_faults
 from vlaprobe.rollout.loop import EpisodeControl, StepRecord, run_episode
 
 MakeDriver = Callable[[DriverName, TaskEnv, VLAPolicy, int, float], Driver]
@@ -74,6 +75,8 @@ class EpisodeRunner:
 
     def __init__(self, policy: VLAPolicy, envs: EnvCache, make_driver: MakeDriver = make_driver) -> None:
         self.policy, self.envs, self._make_driver = policy, envs, make_driver
+        self.driver: Driver | None = None
+        """The driver of the latest episode (its fault marks, where ``faults`` were given)."""
 
     def run(
         self,
@@ -86,11 +89,15 @@ class EpisodeRunner:
         post_success_steps: int = 0,
         control: EpisodeControl | None = None,
         beta: float = 0.0,
+        faults: FaultSpec | None = None,
     ) -> Iterator[StepRecord]:
         """Seed, build the driver and run one episode (see :func:`vlaprobe.rollout.run_episode`); ``beta`` is
-        the dagger driver's share of expert-executed steps."""
+        the dagger driver's share of expert-executed steps, ``faults`` those injected into the expert."""
         seed_everything(seed)
         chosen = self._make_driver(driver, env, self.policy, seed, beta)
+        if faults is not None and faults.any:
+            chosen = with_faults(chosen, env, faults, seed)
+        self.driver = chosen
         yield from run_episode(
             env,
             self.policy,
