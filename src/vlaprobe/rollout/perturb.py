@@ -62,7 +62,9 @@ def parse_kinds(
             what = "a scale ≥ 0" if kind in scales else "a probability in [0, 1]"
             raise VlaprobeError(f"{flag}: {kind} needs {what}, got {value.strip()!r}")
         if kind in values:
-            raise VlaprobeError(f"{flag}: {kind} is given twice ({values[kind]:g} and {v:g}); give each kind once")
+            raise VlaprobeError(
+                f"{flag}: {kind} is given twice ({values[kind]:g} and {v:g}); give each kind once"
+            )
         values[kind] = v
     return values
 
