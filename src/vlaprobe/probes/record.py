@@ -65,6 +65,7 @@ def probe_meta(
         )
 
     return ProbesMeta(
+        suite=data.suite,
         model_id=data.model_id,
         pooling=data.pooling,
         hidden_size=data.hidden_size,
