@@ -45,6 +45,21 @@ def test_stores_and_probes_record_their_suite(fake_run: Path, goal_store: Path) 
         ProbeSet.load(fake_run / "probes", suite="libero_goal")
 
 
+def test_probes_trained_on_a_suite_say_so_in_every_file(goal_store: Path, tmp_path: Path) -> None:
+    from vlaprobe.configs.train import TrainConfig
+    from vlaprobe.probes.results import read_evaluation
+    from vlaprobe.probes.train import train_probes
+    from vlaprobe.results import build_results
+
+    out = tmp_path / "probes"
+    train_probes(
+        TrainConfig(store=goal_store, out=out, bootstrap=5, auprc_bootstrap=2, shuffled_control=False)
+    )
+    assert read_probes_meta(out).suite == "libero_goal"
+    evaluation = read_evaluation(out)
+    assert evaluation.suite == "libero_goal" and build_results(evaluation, None).suite == "libero_goal"
+
+
 def test_the_cognition_refuses_a_store_of_another_suite(
     fake_run: Path, goal_store: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
