@@ -19,7 +19,7 @@ import numpy as np
 from vlaprobe.envs.libero import NOOP_ACTION, LiberoTaskEnv
 from vlaprobe.policies.base import VLAPolicy
 from vlaprobe.rollout import StepRecord
-from vlaprobe.symbols import parse_atom
+from vlaprobe.symbols import atom, parse_atom
 from vlaprobe.symbols.goals import Conjunct, conjunct_value, goal_value
 
 SETTLE_STEPS = 15
@@ -132,7 +132,7 @@ def set_joint(env: LiberoTaskEnv, c: Conjunct) -> None:
     inside = []
     if name in scene.containers:
         values, _ = env.labeler.as_dict(env.world_state())
-        inside = [a for a in scene.pickupable if values.get(f"inside({a},{name})")]
+        inside = [a for a in scene.pickupable if values.get(atom("inside", a, name))]
         before = np.array(data.get_site_xpos(name))
     data.set_joint_qpos(joint, value)
     data.set_joint_qvel(joint, 0.0)

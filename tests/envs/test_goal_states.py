@@ -6,11 +6,11 @@ suites: the episode sweep) runs every task of every suite."""
 
 from __future__ import annotations
 
-import os
 import sys
 
 import pytest
 from tests.envs.goal_states import RowCheck, task_check
+from tests.envs.test_libero_suites import sweep_cases
 
 from vlaprobe.configs.env import SUITES, EnvConfig, SuiteName
 from vlaprobe.envs.libero import LiberoTaskEnv
@@ -24,18 +24,9 @@ ONE_TASK: dict[SuiteName, int] = {
     "libero_10": 3,  # Close(drawer) & In(bowl, drawer): the bowl rides the drawer in
     "libero_90": 0,  # Open(top drawer)
 }
-SWEEP = os.environ.get("VLAPROBE_LIBERO_SWEEP") == "1"
 
 
-def _cases() -> list[tuple[SuiteName, int]]:
-    if not SWEEP:
-        return list(ONE_TASK.items())
-    from vlaprobe.envs.libero import suite_tasks
-
-    return [(suite, task) for suite in SUITES for task, _ in suite_tasks(suite)]
-
-
-@pytest.mark.parametrize(("suite", "task"), _cases())
+@pytest.mark.parametrize(("suite", "task"), sweep_cases(ONE_TASK))
 def test_our_goal_and_atoms_agree_with_libero_at_placed_goal_states(suite: SuiteName, task: int) -> None:
     with LiberoTaskEnv(task, EnvConfig(suite=suite, render=False)) as env:
         check = task_check(env)

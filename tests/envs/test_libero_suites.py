@@ -75,15 +75,16 @@ SWEEP = os.environ.get("VLAPROBE_LIBERO_SWEEP") == "1"
 """``VLAPROBE_LIBERO_SWEEP=1``: every task of every suite (minutes); else one task per suite."""
 
 
-def _cases() -> list[tuple[SuiteName, int]]:
+def sweep_cases(one_task: dict[SuiteName, int]) -> list[tuple[SuiteName, int]]:
+    """The (suite, task) cases of a per-suite LIBERO test: ``one_task`` in CI, every task under the sweep."""
     if not SWEEP:
-        return list(ONE_TASK.items())
+        return list(one_task.items())
     from vlaprobe.envs.libero import suite_tasks
 
     return [(suite, task) for suite in SUITES for task, _ in suite_tasks(suite)]
 
 
-@pytest.mark.parametrize(("suite", "task"), _cases())
+@pytest.mark.parametrize(("suite", "task"), sweep_cases(ONE_TASK))
 def test_init_atoms_agree_with_the_bddl_and_libero(suite: SuiteName, task: int) -> None:
     from tests.envs.test_libero import bddl_scene_agrees_with_the_simulator
 

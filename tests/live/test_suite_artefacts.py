@@ -6,10 +6,10 @@ from pathlib import Path
 
 import pytest
 from tests.collection.fakes import make_fake_worker
+from tests.collection.test_collect import config
 
 from vlaprobe.cli import main
 from vlaprobe.collection.store import read_store_meta
-from vlaprobe.configs.collect import CollectConfig
 from vlaprobe.configs.env import EnvConfig
 from vlaprobe.configs.finetune import FinetuneConfig
 from vlaprobe.configs.monitor import MonitorConfig
@@ -24,15 +24,7 @@ def goal_store(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from vlaprobe.collection.collect import collect
 
     out = tmp_path_factory.mktemp("goal") / "activations"
-    cfg = CollectConfig(
-        out=out,
-        tasks=(0, 1),
-        episodes_per_task=2,
-        max_tries_per_task=6,
-        progress=False,
-        env=EnvConfig(suite="libero_goal", max_steps=6, image_size=16),
-    )
-    collect(cfg, make_fake_worker)
+    collect(config(out, env=EnvConfig(suite="libero_goal", max_steps=6, image_size=16)), make_fake_worker)
     return out
 
 
