@@ -178,9 +178,10 @@ def place_goal(env: LiberoTaskEnv, out: RowCheck, label: str) -> None:
     for c in goal.conjuncts:
         if c.predicate == "In" and c.args[1] in scene.containers:
             set_joint(env, Conjunct("Open", (c.args[1],)))
-    for c in goal.conjuncts:
-        if c.predicate in ("On", "In"):
-            put(env, *c.args, into=c.predicate == "In")
+    moves = [c for c in goal.conjuncts if c.predicate in ("On", "In")]
+    targets = {c.args[1] for c in moves}
+    for c in sorted(moves, key=lambda c: c.args[0] not in targets):  # a stack's base goes first
+        put(env, *c.args, into=c.predicate == "In")
     success = False
     for _ in range(SETTLE_STEPS):
         success = env.step(NOOP_ACTION).success

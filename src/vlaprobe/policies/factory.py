@@ -11,7 +11,7 @@ from vlaprobe.configs.policy import PolicyConfig
 from vlaprobe.policies.base import VLAPolicy
 
 
-def make_policy(cfg: PolicyConfig, suite: SuiteName = "libero_spatial") -> VLAPolicy:
+def make_policy(cfg: PolicyConfig, suite: SuiteName | str = "libero_spatial") -> VLAPolicy:
     """The policy ``cfg`` describes, un-normalising actions with ``suite``'s statistics unless
     ``cfg.unnorm_key`` names others.
 
