@@ -32,6 +32,16 @@ def is_hub_id(model: str) -> bool:
     return bool(_HUB_ID.fullmatch(model)) and not Path(model).exists() and ".." not in model
 
 
+def model_folder(model: str) -> Path | None:
+    """The checkpoint folder ``--model`` names: a shipped model's, a hub id's cached snapshot, else the path
+    itself; None for a model built from a seed ("tiny", "tiny-libero-init")."""
+    from vlaprobe.policies.openvla.embedded import SEEDED_MODELS, embedded_folder
+
+    if model in SEEDED_MODELS:
+        return None
+    return embedded_folder(model) or (hub_folder(model) if is_hub_id(model) else Path(model))
+
+
 def download_command(repo_id: str) -> str:
     """The command that puts ``repo_id``'s loader files into the cache (``hf`` is huggingface_hub's CLI)."""
     return f"hf download {repo_id} --include {' '.join(repr(p) for p in LOADER_FILES)}"
@@ -57,8 +67,8 @@ def hub_folder(repo_id: str, revision: str | None = None) -> Path:
             "not in the Hugging Face cache" if constants.HF_HUB_OFFLINE else "neither cached nor downloadable"
         )
         raise VlaprobeError(
-            f"--policy.model {repo_id} is {where} ({constants.HF_HUB_CACHE}; {type(exc).__name__}); fetch it with "
-            f"`{download_command(repo_id)}` (HF_HOME chooses the cache), or pass a checkpoint folder"
+            f"model {repo_id} is no folder and {where} ({constants.HF_HUB_CACHE}; {type(exc).__name__}); fetch "
+            f"it with `{download_command(repo_id)}` (HF_HOME chooses the cache), or pass a checkpoint folder"
         ) from None
     missing = [name for name in ("config.json", "*.safetensors") if not any(folder.glob(name))]
     if missing:

@@ -19,7 +19,7 @@ from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject
 from vlaprobe.policies.base import PolicyStep
 from vlaprobe.policies.openvla import actions, checkpoint, hub, preprocessing
-from vlaprobe.policies.openvla.embedded import SEEDED_MODELS, embedded_folder
+from vlaprobe.policies.openvla.embedded import SEEDED_MODELS
 from vlaprobe.policies.openvla.model import OpenVLA, Prediction, _pool
 from vlaprobe.policies.openvla.tiny import LIBERO_SPATIAL_LIKE_STATS, tiny_config, tiny_state_dict
 from vlaprobe.policies.openvla.tokenizer import HFTokenizer, Tokenizer, WordHashTokenizer, prompt_ids
@@ -125,12 +125,12 @@ class OpenVLAPolicy:
         """``make_policy``'s implementation: a seeded name ("tiny", "tiny-libero-init"), a shipped model's name
         ("tiny-libero"), a checkpoint folder or a hub id (``openvla/openvla-7b-finetuned-libero-goal``: the
         snapshot in huggingface_hub's cache, :mod:`vlaprobe.policies.openvla.hub`)."""
-        if model in SEEDED_MODELS:
+        folder = hub.model_folder(model)
+        if folder is None:
             return cls.tiny(seed=seed, device=device, patch_size=SEEDED_MODELS[model], **kwargs)
-        folder = embedded_folder(model)
-        if folder is None and hub.is_hub_id(model):
-            return cls.from_folder(hub.hub_folder(model), device=device, model_id=model, **kwargs)
-        return cls.from_folder(model if folder is None else folder, device=device, **kwargs)
+        return cls.from_folder(
+            folder, device=device, model_id=model if hub.is_hub_id(model) else None, **kwargs
+        )
 
     def save_pretrained(self, folder: str | Path) -> None:
         """Write this model (safetensors + JSON config) so ``make_policy(PolicyConfig(folder))`` rebuilds it exactly."""
