@@ -92,9 +92,11 @@ def sweep(suites: list[str], tasks: list[int] | None = None) -> None:
         )
 
 
-def episode_sweep(max_steps: int = 80) -> None:
-    """The expert's episodes of every LIBERO-spatial task (init 0), and the tiny model's (``max_steps``) in the
-    first three tasks of every other suite: rows checked and disagreements per suite and driver."""
+def episode_sweep(max_steps: int = 60) -> None:
+    """The expert's episodes of every LIBERO-spatial task (init 0; the fake model observes: only the rows are
+    checked), and the tiny model's (``max_steps``) in the first three tasks of every other suite: rows checked
+    and disagreements per suite and driver."""
+    from tests.collection.fakes import FakePolicy
     from tests.envs.goal_states import episode_check
 
     from vlaprobe.configs.policy import PolicyConfig
@@ -102,14 +104,15 @@ def episode_sweep(max_steps: int = 80) -> None:
     from vlaprobe.policies import make_policy
 
     for suite in SUITES:
-        policy = make_policy(PolicyConfig("tiny-libero", device="cpu"), suite)
+        tiny = make_policy(PolicyConfig("tiny-libero", device="cpu"), suite)
         runs = [(t, "expert", 300) for t, _ in suite_tasks(suite)] if suite == "libero_spatial" else []
         runs += [(t, "policy", max_steps) for t in (0, 1, 2)]
         for driver in ("expert", "policy"):
             total = RowCheck()
+            policy = FakePolicy(PolicyConfig()) if driver == "expert" else tiny
             for task, _, steps in (r for r in runs if r[1] == driver):
-                with LiberoTaskEnv(task, EnvConfig(suite=suite, render=True)) as env:
-                    total.add(episode_check(env, driver, policy, max_steps=steps))
+                with LiberoTaskEnv(task, EnvConfig(suite=suite, image_size=128)) as env:
+                    total.add(episode_check(env, driver, policy, max_steps=steps))  # type: ignore[arg-type]
             if total.tasks:
                 print(
                     f"{suite} {driver}: {total.tasks} episodes, {total.goal_rows} rows ({total.goal_reached} at "
