@@ -374,6 +374,7 @@ def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.Captu
             "invalid choice 'libero_100' for argument '--suite/--env.suite'",
         ),
         (["atoms", "--env.suite", "spatial"], "invalid choice 'spatial'"),
+        (["model-info", "--suite", "libero_100"], "invalid choice 'libero_100'"),
         (
             ["atoms", "--suite", "libero_goal", "--task", "10"],
             "--task 10 out of range; libero_goal has tasks 0-9",

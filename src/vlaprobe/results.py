@@ -176,6 +176,8 @@ class RunResults:
     vlaprobe_version: str
     figures: dict[str, Number]
     """Flat key -> figure (None: undefined in this run)."""
+    suite: str = "libero_spatial"
+    """The LIBERO suite of the run's episodes."""
     format: str = FORMAT
     format_version: int = FORMAT_VERSION
 
@@ -212,6 +214,7 @@ def build_results(evaluation: Evaluation, cognition: MonitorResult | None) -> Ru
             _put(figures, f"cognition.{key}", of_cognition(cognition))
     observer = evaluation.controls.observer
     return RunResults(
+        suite=evaluation.suite,
         model_id=evaluation.model_id,
         control_model_id=None if observer is None else observer.model_id,
         vlaprobe_version=evaluation.versions.get("vlaprobe") or "unknown",

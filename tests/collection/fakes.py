@@ -115,7 +115,7 @@ class FakeStep:
 
 
 class FakePolicy:
-    def __init__(self, cfg: Any) -> None:  # a PolicyConfig
+    def __init__(self, cfg: Any, suite: str = "libero_spatial") -> None:  # a PolicyConfig and the suite
         self.model_id, self.pooling, self.seed = "fake", cfg.pooling, cfg.seed
         self.num_hidden_states, self.hidden_size = LAYERS, HIDDEN
 

@@ -36,8 +36,8 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 class OtherIdPolicy(FakePolicy):
-    def __init__(self, cfg: Any) -> None:
-        super().__init__(cfg)
+    def __init__(self, cfg: Any, suite: str = "libero_spatial") -> None:
+        super().__init__(cfg, suite)
         self.model_id = "other"
 
 
@@ -47,14 +47,14 @@ class RevisedPolicy(FakePolicy):
 
 
 class DeeperPolicy(FakePolicy):
-    def __init__(self, cfg: Any) -> None:
-        super().__init__(cfg)
+    def __init__(self, cfg: Any, suite: str = "libero_spatial") -> None:
+        super().__init__(cfg, suite)
         self.num_hidden_states += 1
 
 
 class WiderPolicy(FakePolicy):
-    def __init__(self, cfg: Any) -> None:
-        super().__init__(cfg)
+    def __init__(self, cfg: Any, suite: str = "libero_spatial") -> None:
+        super().__init__(cfg, suite)
         self.hidden_size += 1
 
 

@@ -14,7 +14,7 @@ from vlaprobe.configs.finetune import FinetuneConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.finetune import model_io
 from vlaprobe.finetune.checks import DEFINING, RUNTIME_FIELDS, check_run_folder
-from vlaprobe.finetune.command import finetune
+from vlaprobe.finetune.command import finetune, with_stores_suite
 from vlaprobe.locks import lock_path
 
 
@@ -42,7 +42,8 @@ def _snapshot(folder: Path) -> dict[str, tuple[int, int]]:
 
 @pytest.fixture(scope="module")
 def finished(tmp_path_factory: pytest.TempPathFactory, small_model: Path, demo_store: Path) -> FinetuneConfig:
-    """A one-step fine-tune's settings; its run folder holds a checkpoint to resume."""
+    """A one-step fine-tune's settings, as the command resolves them (the statistics key from the stores' suite);
+    its run folder holds a checkpoint to resume."""
     cfg = FinetuneConfig(
         stores=(demo_store,),
         out=tmp_path_factory.mktemp("finetune") / "run",
@@ -55,7 +56,7 @@ def finished(tmp_path_factory: pytest.TempPathFactory, small_model: Path, demo_s
         val_fraction=0.25,
     )
     assert finetune(cfg) == 0
-    return cfg
+    return with_stores_suite(cfg)[0]
 
 
 def test_the_defining_settings_are_every_setting_but_the_runtime_ones() -> None:

@@ -31,11 +31,12 @@ def messages_until(ws, kind: str, limit: int = 5000, timeout: float = 30) -> lis
 
 def test_episode_end_to_end_on_uvicorn(tmp_path: Path) -> None:
     with LiveServer(fake_app(tmp_path)) as srv, connect(srv.url, open_timeout=10) as ws:
-        assert json.loads(ws.recv(timeout=10))["type"] == "hello"
+        hello = json.loads(ws.recv(timeout=10))
+        assert hello["type"] == "hello" and hello["suite"] == "libero_spatial"
         ws.send(json.dumps({"type": "start", "task": 0, "init": SUCCESS_INIT, "driver": "expert"}))
         msgs = messages_until(ws, "episode_end")
     steps = [m for m in msgs if m["type"] == "step"]
-    assert msgs[0]["type"] == "episode_start"
+    assert msgs[0]["type"] == "episode_start" and msgs[0]["suite"] == "libero_spatial"  # recorded with it too
     assert [m["t"] for m in steps] == list(range(episode_length(0, SUCCESS_INIT)))
     assert msgs[-1]["success"] is True
 

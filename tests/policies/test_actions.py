@@ -73,6 +73,12 @@ def test_unnorm_key_falls_back_to_no_noops():
     np.testing.assert_array_equal(q01, Q01)
     with pytest.raises(VlaprobeError, match="libero_goal"):
         actions.resolve_unnorm_key(stats, "libero_goal")
+    assert actions.resolve_unnorm_key(stats, None, "libero_spatial") == "libero_spatial_no_noops"
+    assert actions.resolve_unnorm_key(stats, None, "libero_goal") == "libero_spatial_no_noops"  # the only key
+    two = {**stats, "libero_goal_no_noops": stats["libero_spatial_no_noops"]}
+    assert actions.resolve_unnorm_key(two, None, "libero_goal") == "libero_goal_no_noops"  # the suite's
+    with pytest.raises(VlaprobeError, match="libero_10"):
+        actions.resolve_unnorm_key(two, None, "libero_10")  # two keys, neither the suite's
     no_mask = {"k": {"action": {"q01": [0.0, 0.0], "q99": [1.0, 2.0]}}}
     assert actions.action_stats(no_mask, "k")[2].tolist() == [True, True]
     with pytest.raises(VlaprobeError, match="malformed"):

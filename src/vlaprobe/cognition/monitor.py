@@ -23,6 +23,7 @@ import numpy as np
 
 from vlaprobe.cognition.core import Cognition, CognitionStep
 from vlaprobe.cognition.readout import HEADS, ProbeReadout
+from vlaprobe.configs.env import same_suite
 from vlaprobe.configs.monitor import CognitionConfig, MonitorConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject, from_json, read_versioned, write_atomic
@@ -217,6 +218,7 @@ class _Pair:
 
 
 def _check_store(store: ActivationStore, readout: ProbeReadout, path: Path) -> None:
+    same_suite(f"store {path}", store.suite, f"the probes in {readout.probes.where}", readout.probes.suite)
     if store.model_id != readout.model_id:
         raise VlaprobeError(
             f"store {path} was observed by {store.model_id!r}, not the probes' model; pass its store"
@@ -341,8 +343,8 @@ def monitor(cfg: MonitorConfig) -> MonitorResult:
     if cfg.out is not None:
         check_output_folder(cfg.out)  # before the episodes are run, not after
     store = ActivationStore.open(cfg.store)
-    readout = ProbeReadout.load(cfg.probes, model_id=store.model_id)
-    _check_store(store, readout, cfg.store)
+    readout = ProbeReadout.load(cfg.probes)
+    _check_store(store, readout, cfg.store)  # the suite, then the model, then the atoms
     keys, held_out = _episodes(cfg, store, readout.probes)
     require_intact(cfg.store, read=True, keys=keys)  # a missing chunk would read as fill values
     sources = [(store, keys, str(cfg.store), "")]

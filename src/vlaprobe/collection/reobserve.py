@@ -73,7 +73,7 @@ def reobserve(source: str | Path, out: str | Path, cfg: PolicyConfig, batch: int
     store = ActivationStore.open(source)
     if Path(out).resolve() == store.path.resolve():
         raise VlaprobeError(f"reobserve writes a new store; choose an --out other than the source {source}")
-    policy = make_policy(cfg)
+    policy = make_policy(cfg, store.suite)
     if not isinstance(policy, Observer):
         raise VlaprobeError(f"model {cfg.model!r} cannot re-observe stored images; use an OpenVLA model")
     added: list[str] = []

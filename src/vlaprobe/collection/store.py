@@ -158,6 +158,8 @@ class StoreMeta:
     """Task id (as a string) -> the task's instruction."""
     perturb: str | None = None
     """The perturbation spec of the run (None: no perturbation)."""
+    suite: str = "libero_spatial"
+    """The LIBERO suite the episodes come from (stores written before suites were recorded are LIBERO-spatial's)."""
 
     @classmethod
     def parse(cls, meta: Mapping[str, Json]) -> StoreMeta:
@@ -173,6 +175,7 @@ class StoreMeta:
             driver=None if meta.get("driver") is None else str(meta["driver"]),
             instructions={str(k): str(v) for k, v in (meta.get("instructions") or {}).items()},
             perturb=None if meta.get("perturb") is None else str(meta["perturb"]),
+            suite=str(meta.get("suite") or "libero_spatial"),
         )
 
 
@@ -286,6 +289,7 @@ class ActivationStore:
         self.hidden_size: int = self.metadata.hidden_size
         self.pooling: str = self.metadata.pooling
         self.model_id: str = self.metadata.model_id
+        self.suite: str = self.metadata.suite
         self.created: str = self.metadata.created
         """When the store was created (ISO 8601; "" in stores that do not say)."""
         self.atom_names: dict[str, list[str]] = {h: list(v) for h, v in self.metadata.atom_names.items()}

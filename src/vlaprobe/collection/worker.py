@@ -18,7 +18,7 @@ from vlaprobe.collection.episode import EpisodeAttrs, EpisodeSteps, Perturbation
 from vlaprobe.collection.plan import Unit
 from vlaprobe.collection.store import EpisodeInfo
 from vlaprobe.configs.collect import CollectConfig
-from vlaprobe.configs.env import EnvConfig
+from vlaprobe.configs.env import EnvConfig, SuiteName
 from vlaprobe.configs.policy import PolicyConfig
 from vlaprobe.envs import make_env
 from vlaprobe.envs.base import TaskEnv
@@ -83,10 +83,10 @@ def unit_seed(seed: int, unit: Unit) -> int:
     return int.from_bytes(hashlib.sha256(text).digest()[:4], "little") & 0x7FFFFFFF
 
 
-def _make_policy(cfg: PolicyConfig) -> VLAPolicy:
+def _make_policy(cfg: PolicyConfig, suite: SuiteName) -> VLAPolicy:
     from vlaprobe.policies.factory import make_policy
 
-    return make_policy(cfg)
+    return make_policy(cfg, suite)
 
 
 def _suite_tasks(cfg: EnvConfig) -> dict[int, str]:
@@ -96,7 +96,7 @@ def _suite_tasks(cfg: EnvConfig) -> dict[int, str]:
 
 
 MakeEnv = Callable[[int, EnvConfig], TaskEnv]
-MakePolicy = Callable[[PolicyConfig], VLAPolicy]
+MakePolicy = Callable[[PolicyConfig, SuiteName], VLAPolicy]
 ListTasks = Callable[[EnvConfig], dict[int, str]]
 
 
@@ -121,7 +121,7 @@ class Worker:
         import torch
 
         torch.set_num_threads(cfg.threads or default_threads(cfg.workers))
-        self.policy = make_policy(cfg.policy)
+        self.policy = make_policy(cfg.policy, cfg.env.suite)
         envs = EnvCache(lambda task: make_env(task, cfg.env), on_new=self._check_vocabulary)
         # The expert does not read the model: it observes each episode afterwards, in batches.
         self._deferred = (

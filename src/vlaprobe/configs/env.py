@@ -16,6 +16,17 @@ SuiteName = Literal["libero_spatial", "libero_object", "libero_goal", "libero_10
 SUITES: tuple[SuiteName, ...] = typing.get_args(SuiteName)
 
 
+def same_suite(first: str, first_suite: str, second: str, second_suite: str) -> None:
+    """Refuse (one line) to combine two artefacts of different suites: their atoms, tasks and goals differ."""
+    if first_suite != second_suite:
+        from vlaprobe.errors import VlaprobeError
+
+        raise VlaprobeError(
+            f"{first} is from {first_suite}, {second} from {second_suite}; combine artefacts of one suite "
+            f"(collect, train and serve with the same --suite)"
+        )
+
+
 @dataclass
 class EnvConfig:
     """How to build a LIBERO task environment."""

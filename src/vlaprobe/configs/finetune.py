@@ -28,8 +28,9 @@ class FinetuneConfig:
     """Seed of a seeded model's initial weights (ignored for checkpoint folders)."""
     model_id: str = ""
     """Name written into the checkpoint (``vlaprobe model-info`` shows it). Empty: the --out folder's name."""
-    dataset_name: str = "libero_spatial"
-    """Key of the action statistics in ``norm_stats`` (what ``--unnorm-key`` selects when the model runs)."""
+    dataset_name: str | None = None
+    """Key of the action statistics in ``norm_stats`` (what ``--unnorm-key`` selects when the model runs).
+    Default: the stores' suite (``libero_goal``), the key a run with ``--suite libero_goal`` looks for."""
     # --- data ---
     tasks: tuple[int, ...] = ()
     """Train only on the episodes of these task indices (e.g. ``--tasks 0`` to check that the model can learn

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal, get_args
 
+from vlaprobe.configs.env import SuiteName
 from vlaprobe.errors import VlaprobeError
 
 Pooling = Literal["last_prompt", "mean_text", "mean_all", "action_tokens"]
@@ -43,8 +44,10 @@ class PolicyConfig:
     model: str = "tiny-libero"
     """"tiny-libero" (the shipped tiny OpenVLA trained on LIBERO-spatial expert demonstrations, the default),
     "tiny-libero-init" (its network before training: seeded random weights, the control observer), "tiny" (the
-    random tiny model with OpenVLA's 256 patches), or an OpenVLA checkpoint folder (official HF layout:
-    config.json, *.safetensors, dataset_statistics.json, tokenizer.json)."""
+    random tiny model with OpenVLA's 256 patches), an OpenVLA checkpoint folder (official HF layout:
+    config.json, *.safetensors, dataset_statistics.json, tokenizer.json), or a Hugging Face hub id
+    (``openvla/openvla-7b-finetuned-libero-goal``: the loader's files from huggingface_hub's cache, downloaded
+    unless ``HF_HUB_OFFLINE=1``; ``HF_HOME`` chooses the cache)."""
     pooling: Pooling = "last_prompt"
     """Hidden state per layer: the last prompt position (the paper's choice), the mean over text or all
     prompt positions, or the 7 positions that choose the action tokens."""
@@ -52,8 +55,10 @@ class PolicyConfig:
     """"auto" (CUDA + bf16 when available, else CPU + fp32), "cpu", "cuda" or "cuda:N"."""
     seed: int = 0
     """Seed of the tiny model's weights (ignored for checkpoint folders)."""
-    unnorm_key: str = "libero_spatial"
-    """Action statistics to un-normalise with; "<key>_no_noops" is tried next, as OpenVLA's LIBERO eval does."""
+    unnorm_key: str | None = None
+    """Action statistics to un-normalise with; "<key>_no_noops" is tried next, as OpenVLA's LIBERO eval does.
+    Default: the suite's (``--suite libero_goal``: ``libero_goal``, then ``libero_goal_no_noops``, the key of
+    OpenVLA's LIBERO-goal fine-tune), or the checkpoint's only key when it has no statistics for the suite."""
     center_crop: bool = True
     """OpenVLA's 0.9-area centre crop (the LIBERO fine-tunes were trained with random crops)."""
     preprocessing: Preprocessing = "numpy"
@@ -70,6 +75,8 @@ class ModelInfoConfig:
     """Also run one step on a synthetic 256×256 frame and report the action, tokens and time."""
     instruction: str = "pick up the black bowl between the plate and the ramekin and place it on the plate"
     """Instruction for --step."""
+    suite: SuiteName = "libero_spatial"
+    """The suite whose action statistics the model un-normalises with (unless --policy.unnorm-key names others)."""
 
 
 @dataclass

@@ -11,6 +11,7 @@ import numpy as np
 import torch
 
 from vlaprobe.configs import config_to_dict
+from vlaprobe.configs.env import same_suite
 from vlaprobe.configs.finetune import FinetuneConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject, write_atomic
@@ -49,9 +50,9 @@ def _stats_of(norm_stats: JsonObject, name: str) -> ActionStats:
     return ActionStats(np.asarray(a["q01"]), np.asarray(a["q99"]), np.asarray(a["mask"], dtype=bool))
 
 
-def _check_same_data(cfg: FinetuneConfig, norm_stats: JsonObject) -> None:
+def _check_same_data(cfg: FinetuneConfig, name: str, norm_stats: JsonObject) -> None:
     saved = json.loads((cfg.out / CHECKPOINT / "dataset_statistics.json").read_text())
-    if saved.get(cfg.dataset_name) != json.loads(json.dumps(norm_stats[cfg.dataset_name])):
+    if saved.get(name) != json.loads(json.dumps(norm_stats[name])):
         raise VlaprobeError(
             f"--out {cfg.out} was trained on other data (its action statistics differ from these stores'); "
             "pass the same --stores to resume, or choose a new --out"
@@ -71,8 +72,8 @@ def _check_compiler(device: torch.device) -> None:
         )
 
 
-def _data(cfg: FinetuneConfig, image_size: int) -> tuple[Demonstrations, Split, JsonObject]:
-    """The demonstrations, their split and the training split's statistics (``norm_stats``)."""
+def _data(cfg: FinetuneConfig, name: str, image_size: int) -> tuple[Demonstrations, Split, JsonObject]:
+    """The demonstrations, their split and the training split's statistics (``norm_stats``, key ``name``)."""
     demos = load_demonstrations(
         cfg.stores, image_size, cfg.success_only, cfg.skip_post_success, cfg.drop_noops, cfg.tasks
     )
@@ -82,7 +83,7 @@ def _data(cfg: FinetuneConfig, image_size: int) -> tuple[Demonstrations, Split, 
             f"the training split has {len(split.train)} rows, fewer than --batch-size {cfg.batch_size}; "
             "lower --batch-size or collect more episodes"
         )
-    return demos, split, {cfg.dataset_name: dataset_statistics(demos, split.train, len(split.train_episodes))}
+    return demos, split, {name: dataset_statistics(demos, split.train, len(split.train_episodes))}
 
 
 def _restore(
@@ -102,14 +103,27 @@ def _restore(
     return state, read_metrics(cfg.out, state.step)
 
 
+def with_stores_suite(cfg: FinetuneConfig) -> tuple[FinetuneConfig, str]:
+    """``cfg`` with ``dataset_name`` filled in (default: the stores' suite, the key ``--suite`` looks for when the
+    model runs) and that name; the stores must be collection stores of one suite."""
+    from vlaprobe.collection.store import StoreMeta, read_meta
+
+    metas = [
+        StoreMeta.parse(read_meta(path, hint="pass the --out folder of a `vlaprobe collect` run to --stores"))
+        for path in cfg.stores
+    ]
+    for path, meta in zip(cfg.stores[1:], metas[1:], strict=True):
+        same_suite(f"store {cfg.stores[0]}", metas[0].suite, f"store {path}", meta.suite)
+    name = cfg.dataset_name or (metas[0].suite if metas else "libero_spatial")
+    return dataclasses.replace(cfg, dataset_name=name), name
+
+
 def build_trainer(cfg: FinetuneConfig) -> tuple[Trainer, JsonObject]:
     """Everything up to the first step; every input problem is a one-line error before any training."""
     from vlaprobe import devices
-    from vlaprobe.collection.store import read_meta
 
     check_finetune(cfg)
-    for path in cfg.stores:
-        read_meta(path, hint="pass the --out folder of a `vlaprobe collect` run to --stores")
+    cfg, name = with_stores_suite(cfg)
     device = devices.resolve_device(cfg.device)
     if cfg.compile:
         _check_compiler(device)
@@ -117,10 +131,10 @@ def build_trainer(cfg: FinetuneConfig) -> tuple[Trainer, JsonObject]:
     resuming = check_run_folder(cfg, arch)
     if cfg.threads is not None:
         torch.set_num_threads(cfg.threads)
-    demos, split, norm_stats = _data(cfg, arch.featurizer.image_size)
+    demos, split, norm_stats = _data(cfg, name, arch.featurizer.image_size)
     if resuming:
-        _check_same_data(cfg, norm_stats)
-    stats = _stats_of(norm_stats, cfg.dataset_name)
+        _check_same_data(cfg, name, norm_stats)
+    stats = _stats_of(norm_stats, name)
     init = model_io.load_initial(cfg.model, cfg.model_seed, str(device), full_precision=not cfg.lora)
     model = init.model
     lora_config = lora_mod.add_lora(model, cfg.lora_rank, cfg.lora_dropout, cfg.seed) if cfg.lora else None
@@ -193,6 +207,8 @@ def finetune(cfg: FinetuneConfig) -> int:
 
 
 def _finetune(cfg: FinetuneConfig) -> int:
+    check_finetune(cfg)
+    cfg = with_stores_suite(cfg)[0]  # finetune.json records the statistics key used
     trainer, info = build_trainer(cfg)
     out = cfg.out
     out.mkdir(parents=True, exist_ok=True)

@@ -37,12 +37,11 @@ class Initial:
 
 
 def _folder(model: str) -> Path | None:
-    """The checkpoint folder ``--model`` names (a shipped model's or a path); None for a seeded name."""
-    from vlaprobe.policies.openvla.embedded import SEEDED_MODELS, embedded_folder
+    """The checkpoint folder ``--model`` names (a shipped model's, a hub id's cached snapshot or a path); None
+    for a seeded name."""
+    from vlaprobe.policies.openvla.hub import model_folder
 
-    if model in SEEDED_MODELS:
-        return None
-    return embedded_folder(model) or Path(model)
+    return model_folder(model)
 
 
 def architecture(model: str) -> OpenVLAConfig:

@@ -71,6 +71,8 @@ class EpisodeSpec:
     max_steps: int
     source: str
     """"live" or "store"."""
+    suite: str
+    """The LIBERO suite of the task."""
     goal: Goal
     """The task's goal."""
     atoms: dict[str, list[str]]
@@ -145,6 +147,7 @@ class StepBuilder:
         return P.EpisodeStart(
             episode_id=self.episode_id,
             source="store" if s.source == "store" else "live",
+            suite=s.suite,
             task=s.task,
             instruction=s.instruction,
             init=s.init,

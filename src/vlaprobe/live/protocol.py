@@ -145,6 +145,8 @@ class EpisodeSummary(_Model):
 class Hello(_Model):
     type: Literal["hello"] = "hello"
     version: str
+    suite: str = "libero_spatial"
+    """The LIBERO suite of ``tasks`` and of the probes' atoms."""
     tasks: list[TaskInfo]
     model_id: str
     probes: ProbeInfo
@@ -159,6 +161,8 @@ class EpisodeStart(_Model):
     type: Literal["episode_start"] = "episode_start"
     episode_id: str
     source: Literal["live", "recorded", "store"]
+    suite: str = "libero_spatial"
+    """The LIBERO suite of the task (recordings made before suites were recorded: LIBERO-spatial)."""
     task: int
     instruction: str
     init: int

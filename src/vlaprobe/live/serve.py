@@ -19,6 +19,7 @@ import numpy as np
 
 from vlaprobe import __version__
 from vlaprobe.configs.checks import check_serve, step_limit
+from vlaprobe.configs.env import same_suite
 from vlaprobe.configs.monitor import CognitionConfig
 from vlaprobe.configs.serve import ServeConfig
 from vlaprobe.envs.base import TaskEnv
@@ -128,7 +129,7 @@ def load_probes(cfg: ServeConfig) -> ProbeSet:
         raise VlaprobeError(
             f"no probes in {cfg.probes}; run `vlaprobe run` first (or pass --probes DIR from vlaprobe train)"
         )
-    return ProbeSet.load(cfg.probes)
+    return ProbeSet.load(cfg.probes, suite=cfg.env.suite)
 
 
 def build_engine(
@@ -159,7 +160,8 @@ def build_engine(
         policy = make_policy(
             PolicyConfig(
                 model=cfg.model, pooling=pooling_of(probes.pooling), device=cfg.device, seed=cfg.seed
-            )
+            ),
+            cfg.env.suite,
         )
     probes.check(model_id=policy.model_id, pooling=policy.pooling)
     if make_env is None or tasks is None:
@@ -185,6 +187,7 @@ def build_engine(
         seed=cfg.seed,
         step_limit=step_limit(cfg.env.settle_steps),
         num_init_states=num_init_states,
+        suite=cfg.env.suite,
         **extra,
     )
     replays = None if cfg.store is None else store_replays(cfg.store, probes, make_builder)
@@ -192,6 +195,7 @@ def build_engine(
     kept = {h: set(probes.atoms(h)) for h in HEADS}
     hello = P.Hello(
         version=__version__,
+        suite=cfg.env.suite,
         tasks=[P.TaskInfo(index=i, instruction=s) for i, s in sorted(tasks.items())],
         model_id=policy.model_id,
         probes=P.ProbeInfo(
@@ -223,6 +227,7 @@ def recordings_folder(cfg: ServeConfig) -> Path:
 def store_replays(store: Path, probes: ProbeSet, make_builder: Callable[..., StepBuilder]) -> StoreReplays:
     """The store's episodes for replay: checked intact (the repair advice otherwise) and matching the probes."""
     episodes = StoreEpisodes(store)
+    same_suite(f"--store {store}", episodes.store.suite, f"the probes in {probes.where}", probes.suite)
     probes.check(model_id=episodes.store.model_id)
     for h in HEADS:
         if episodes.atoms[h] != probes.atom_names(h):

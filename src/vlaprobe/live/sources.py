@@ -44,10 +44,12 @@ class Simulator:
         make_driver: MakeDriver = make_driver,
         step_limit: int | None = None,
         num_init_states: int | None = None,
+        suite: str = "libero_spatial",
     ) -> None:
         """``step_limit``: the longest budget the simulator runs (LIBERO's horizon less the settling steps);
-        ``num_init_states``: per task, known up front (a bad init is then refused before the episode starts)."""
-        self.policy, self.tasks = policy, tasks
+        ``num_init_states``: per task, known up front (a bad init is then refused before the episode starts);
+        ``suite``: the LIBERO suite of ``tasks`` (recorded with every episode)."""
+        self.policy, self.tasks, self.suite = policy, tasks, suite
         self.runner = EpisodeRunner(policy, EnvCache(make_env, on_new=self._new_env), make_driver)
         self.max_steps, self.post_success_steps = max_steps, post_success_steps
         self.step_limit = step_limit
@@ -124,6 +126,7 @@ class LiveSource:
             driver=driver,
             max_steps=max_steps,
             source="live",
+            suite=sim.suite,
             goal=env.goal,
             atoms={"object": list(vocab.object_atoms), "action": list(vocab.action_atoms)},
         )
@@ -204,6 +207,7 @@ class StoreEpisodes:
             driver=str(info.driver),
             max_steps=info.length,
             source="store",
+            suite=self.store.suite,
             goal=attrs.goal,
             atoms=self.atoms,
             key=info.key,

@@ -45,6 +45,8 @@ class ProbeData:
     """How the store pooled token positions into one vector per step."""
     num_hidden_states: int
     """Hidden states the model has (33 for OpenVLA), even if only some are loaded."""
+    suite: str = "libero_spatial"
+    """The LIBERO suite of the episodes."""
 
     def __post_init__(self) -> None:
         n = self.hidden.shape[1]
@@ -132,6 +134,7 @@ def load_store(
         model_id=store.model_id,
         pooling=store.pooling,
         num_hidden_states=store.num_hidden_states,
+        suite=store.suite,
     )
 
 

@@ -84,6 +84,8 @@ class ProbesMeta:
     seeds: dict[str, int] = field(default_factory=dict)
     versions: dict[str, str | None] = field(default_factory=dict)
     created: str = ""
+    suite: str = "libero_spatial"
+    """The LIBERO suite of the episodes the probes were trained on (files without it: LIBERO-spatial's)."""
     format: str = FORMAT
     format_version: int = FORMAT_VERSION
 

@@ -62,6 +62,11 @@ class ProbeSet:
         return self.meta.pooling
 
     @property
+    def suite(self) -> str:
+        """The LIBERO suite of the episodes the probes were trained on."""
+        return self.meta.suite
+
+    @property
     def threshold(self) -> float:
         return float(self.meta.threshold)
 
@@ -108,9 +113,16 @@ class ProbeSet:
         layer = self.meta.heads[head].default_layer
         return self.best_layer(head) if layer is None else int(layer)
 
-    def check(self, model_id: str | None = None, pooling: str | None = None) -> None:
-        """Raise VlaprobeError unless these probes were trained on ``model_id`` with ``pooling``."""
+    def check(
+        self, model_id: str | None = None, pooling: str | None = None, suite: str | None = None
+    ) -> None:
+        """Raise VlaprobeError unless these probes were trained on ``model_id`` with ``pooling`` in ``suite``."""
         where = self.where
+        if suite is not None and suite != self.suite:
+            raise VlaprobeError(
+                f"probes in {where} were trained on {self.suite} episodes, not {suite}; train probes on a "
+                f"{suite} store (vlaprobe train) or use --suite {self.suite}"
+            )
         if model_id is not None and model_id != self.model_id:
             raise VlaprobeError(
                 f"probes in {where} were trained on model {self.model_id!r}, not {model_id!r}; "
@@ -137,7 +149,13 @@ class ProbeSet:
         return folder
 
     @classmethod
-    def load(cls, folder: str | Path, model_id: str | None = None, pooling: str | None = None) -> ProbeSet:
+    def load(
+        cls,
+        folder: str | Path,
+        model_id: str | None = None,
+        pooling: str | None = None,
+        suite: str | None = None,
+    ) -> ProbeSet:
         """Read a probe folder; refuse it (VlaprobeError) if it is not one or belongs to another model/pooling."""
         folder = Path(folder)
         meta_path, weights_path = folder / META_FILE, folder / WEIGHTS_FILE
@@ -159,7 +177,7 @@ class ProbeSet:
                     f"{weights_path} does not match {meta_path} for head {head!r}; "
                     "the folder is damaged, run vlaprobe train again"
                 )
-        probes.check(model_id, pooling)
+        probes.check(model_id, pooling, suite)
         return probes
 
     # -- inference --------------------------------------------------------------------------------

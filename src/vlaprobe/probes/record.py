@@ -65,6 +65,7 @@ def probe_meta(
         )
 
     return ProbesMeta(
+        suite=data.suite,
         model_id=data.model_id,
         pooling=data.pooling,
         hidden_size=data.hidden_size,
@@ -115,6 +116,7 @@ def evaluation_record(
     )
     permutations = cfg.shuffled_permutations if cfg.shuffled_control else 0
     return Evaluation(
+        suite=data.suite,
         model_id=data.model_id,
         pooling=data.pooling,
         layers=list(data.layers),

@@ -321,6 +321,8 @@ class Evaluation:
     versions: dict[str, str | None]
     skipped_heads: dict[str, SkippedHead] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=dict)
+    suite: str = "libero_spatial"
+    """The LIBERO suite of the episodes (files without it: LIBERO-spatial's)."""
     format: str = FORMAT
     format_version: int = FORMAT_VERSION
 

@@ -52,7 +52,7 @@ def write_report(cfg: ReportConfig, sections: Sequence[Section] = ()) -> Path:
     evaluation = read_evaluation(cfg.probes)
     out.mkdir(parents=True, exist_ok=True)
     mark_folder(out, REPORT_FOLDER.owner)
-    title = cfg.title or f"Probing {evaluation.model_id} ({evaluation.pooling} pooling)"
+    title = cfg.title or f"Probing {evaluation.model_id} on {evaluation.suite} ({evaluation.pooling} pooling)"
     figures = _heatmaps(out, evaluation, cfg) + _curve_figures(out, evaluation, cfg)
     tables = _tables(evaluation)
     write_atomic(out / "tables.json", json.dumps(tables, indent=1) + "\n")

@@ -24,21 +24,28 @@ def bin_centers(n_action_bins: int = 256) -> np.ndarray:
     return (bins[:-1] + bins[1:]) / 2.0
 
 
-def resolve_unnorm_key(norm_stats: JsonObject, unnorm_key: str) -> str:
-    """``unnorm_key`` if present, else ``unnorm_key + "_no_noops"`` (OpenVLA's LIBERO fallback)."""
-    if unnorm_key in norm_stats:
-        return unnorm_key
-    if f"{unnorm_key}_no_noops" in norm_stats:
-        return f"{unnorm_key}_no_noops"
+def resolve_unnorm_key(norm_stats: JsonObject, unnorm_key: str | None, suite: str = "libero_spatial") -> str:
+    """``unnorm_key`` if present, else ``unnorm_key + "_no_noops"`` (OpenVLA's LIBERO fallback). ``None`` means the
+    suite's statistics (``libero_goal`` → ``libero_goal``, else ``libero_goal_no_noops``, the key of OpenVLA's
+    LIBERO fine-tunes); a checkpoint without them but with one key only uses that one, as OpenVLA does with no
+    key (a single-dataset model un-normalises one way)."""
+    key = suite if unnorm_key is None else unnorm_key
+    if key in norm_stats:
+        return key
+    if f"{key}_no_noops" in norm_stats:
+        return f"{key}_no_noops"
+    if unnorm_key is None and len(norm_stats) == 1:
+        return next(iter(norm_stats))
     raise VlaprobeError(
-        f"action statistics {unnorm_key!r} not in the checkpoint (has {sorted(norm_stats)}); "
-        "pass one of those as unnorm_key or add dataset_statistics.json"
+        f"action statistics {key!r} not in the checkpoint (has {sorted(norm_stats)}); "
+        "pass one of those as --policy.unnorm-key or add dataset_statistics.json"
     )
 
 
-def action_stats(norm_stats: JsonObject, unnorm_key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(q01, q99, mask) of ``norm_stats[key]["action"]``; a missing mask means all dimensions."""
-    key = resolve_unnorm_key(norm_stats, unnorm_key)
+def action_stats(norm_stats: JsonObject, key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(q01, q99, mask) of ``norm_stats[key]["action"]`` (``key`` as :func:`resolve_unnorm_key` resolves it); a
+    missing mask means all dimensions."""
+    key = resolve_unnorm_key(norm_stats, key)
     try:
         stats = norm_stats[key]["action"]
         q01 = np.asarray(stats["q01"], dtype=np.float64)

@@ -18,7 +18,7 @@ from vlaprobe.policies.factory import make_policy
 def model_info(cfg: ModelInfoConfig) -> int:
     """Print the policy's description (and optionally one timed step) as JSON."""
     check_policy(cfg.policy, "policy.")
-    policy = make_policy(cfg.policy)
+    policy = make_policy(cfg.policy, cfg.suite)
     info = policy.describe()
     if cfg.step:
         y, x = np.mgrid[0:256, 0:256]

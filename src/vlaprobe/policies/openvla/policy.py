@@ -18,8 +18,8 @@ from vlaprobe.configs.policy import POOLINGS, Pooling, Preprocessing
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject
 from vlaprobe.policies.base import PolicyStep
-from vlaprobe.policies.openvla import actions, checkpoint, preprocessing
-from vlaprobe.policies.openvla.embedded import SEEDED_MODELS, embedded_folder
+from vlaprobe.policies.openvla import actions, checkpoint, hub, preprocessing
+from vlaprobe.policies.openvla.embedded import SEEDED_MODELS
 from vlaprobe.policies.openvla.model import OpenVLA, Prediction, _pool
 from vlaprobe.policies.openvla.tiny import LIBERO_SPATIAL_LIKE_STATS, tiny_config, tiny_state_dict
 from vlaprobe.policies.openvla.tokenizer import HFTokenizer, Tokenizer, WordHashTokenizer, prompt_ids
@@ -46,7 +46,8 @@ class OpenVLAPolicy:
         *,
         model_id: str,
         pooling: Pooling = "last_prompt",
-        unnorm_key: str = "libero_spatial",
+        unnorm_key: str | None = None,
+        suite: str = "libero_spatial",
         center_crop: bool = True,
         preprocessing: Preprocessing = "numpy",
         source: str = "tiny",
@@ -57,7 +58,7 @@ class OpenVLAPolicy:
         self.model = model
         self.tokenizer = tokenizer
         self.norm_stats = norm_stats
-        self.unnorm_key = actions.resolve_unnorm_key(norm_stats, unnorm_key)
+        self.unnorm_key = actions.resolve_unnorm_key(norm_stats, unnorm_key, suite)
         self._q01, self._q99, self._mask = actions.action_stats(norm_stats, self.unnorm_key)
         self.model_id = model_id
         self.pooling: Pooling = pooling
@@ -92,8 +93,11 @@ class OpenVLAPolicy:
         )
 
     @classmethod
-    def from_folder(cls, folder: str | Path, device: str = "auto", **kwargs: Any) -> OpenVLAPolicy:
-        """An official OpenVLA checkpoint folder or one written by :meth:`save_pretrained`."""
+    def from_folder(
+        cls, folder: str | Path, device: str = "auto", model_id: str | None = None, **kwargs: Any
+    ) -> OpenVLAPolicy:
+        """An official OpenVLA checkpoint folder or one written by :meth:`save_pretrained` (``model_id``: the
+        name to report, default the folder's recorded id or name)."""
         folder = Path(folder)
         cfg, norm_stats, block = checkpoint.read_config(folder)
         if block:
@@ -110,7 +114,7 @@ class OpenVLAPolicy:
             model,
             tokenizer,
             norm_stats,
-            model_id=block.get("model_id", folder.resolve().name),
+            model_id=model_id or block.get("model_id", folder.resolve().name),
             seed=block.get("seed"),
             source=str(folder),
             **kwargs,
@@ -119,11 +123,14 @@ class OpenVLAPolicy:
     @classmethod
     def load(cls, model: str, device: str = "auto", seed: int = 0, **kwargs: Any) -> OpenVLAPolicy:
         """``make_policy``'s implementation: a seeded name ("tiny", "tiny-libero-init"), a shipped model's name
-        ("tiny-libero") or a checkpoint folder."""
-        if model in SEEDED_MODELS:
+        ("tiny-libero"), a checkpoint folder or a hub id (``openvla/openvla-7b-finetuned-libero-goal``: the
+        snapshot in huggingface_hub's cache, :mod:`vlaprobe.policies.openvla.hub`)."""
+        folder = hub.model_folder(model)
+        if folder is None:
             return cls.tiny(seed=seed, device=device, patch_size=SEEDED_MODELS[model], **kwargs)
-        folder = embedded_folder(model)
-        return cls.from_folder(model if folder is None else folder, device=device, **kwargs)
+        return cls.from_folder(
+            folder, device=device, model_id=model if hub.is_hub_id(model) else None, **kwargs
+        )
 
     def save_pretrained(self, folder: str | Path) -> None:
         """Write this model (safetensors + JSON config) so ``make_policy(PolicyConfig(folder))`` rebuilds it exactly."""
