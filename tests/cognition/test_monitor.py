@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import re
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -47,7 +49,7 @@ def labels() -> np.ndarray:
     return np.array([np.concatenate(arrays(s)) for s in STEPS])
 
 
-def write_run(root: Path) -> tuple[Path, Path]:
+def write_run(root: Path, first_seed: int = 0) -> tuple[Path, Path]:
     """Three episodes; the hidden state spells the labels (+-1), except where the probes should err."""
     meta = {
         "atom_names": ATOMS, "model_id": "fake", "model": {"model_id": "fake"}, "num_hidden_states": 2,
@@ -65,7 +67,14 @@ def write_run(root: Path) -> tuple[Path, Path]:
                 x[:, VOCAB.object_atoms.index(next(iter(PLACED)))] = -1
             hidden = np.stack([x, x]).astype(np.float16)
             info = EpisodeInfo(
-                key=key, task=0, init=e, attempt=0, success=True, length=len(y), seed=e, driver="expert"
+                key=key,
+                task=0,
+                init=e,
+                attempt=0,
+                success=True,
+                length=len(y),
+                seed=first_seed + e,
+                driver="expert",
             )
             arrays_ = {"hidden": hidden, "object_atoms": y[:, :n_obj], "action_atoms": y[:, n_obj:]}
             writer.write_episode(info, arrays_, {"goal": {"pick": "akita_black_bowl_1", "place": PLATE}})
@@ -243,11 +252,28 @@ def test_goal_detection_on_succeeding_and_failing_episodes_has_known_figures() -
 
 def test_extra_stores_join_the_figures(run: tuple[Path, Path], tmp_path: Path) -> None:
     store, probes = run
-    result = monitor(MonitorConfig(store=store, probes=probes, extra_stores=(store,), out=tmp_path))
+    extra, _ = write_run(tmp_path / "more", first_seed=10)  # other episodes under the same keys
+    result = monitor(MonitorConfig(store=store, probes=probes, extra_stores=(extra,), out=tmp_path))
     assert result.episodes == 6 == result.probes.goal_detection.episodes
     assert [e.key for e in result.per_episode][3:] == [
-        f"{store.name}/{e.key}" for e in result.per_episode[:3]
+        f"{extra.name}/{e.key}" for e in result.per_episode[:3]
     ]
+
+
+def test_extra_stores_that_repeat_episodes_are_refused(run: tuple[Path, Path], tmp_path: Path) -> None:
+    store, probes = run
+    copy = tmp_path / "copy"
+    shutil.copytree(store, copy)
+    for extra, words in (((store,), "trained on its episodes"), ((copy,), "trained on its episodes")):
+        with pytest.raises(
+            VlaprobeError,
+            match=f"--extra-stores .* repeats 3 episode.s. of {re.escape(str(store))} .*{words}",
+        ):
+            monitor(MonitorConfig(store=store, probes=probes, extra_stores=extra, out=tmp_path / "out"))
+    more, _ = write_run(tmp_path / "more", first_seed=10)
+    with pytest.raises(VlaprobeError, match="counted twice"):
+        monitor(MonitorConfig(store=store, probes=probes, extra_stores=(more, more), out=tmp_path / "out"))
+    assert not (tmp_path / "out").exists()
 
 
 def test_the_gain_interval_over_episodes_has_known_answers() -> None:

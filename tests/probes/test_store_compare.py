@@ -100,3 +100,7 @@ def test_bad_input(stores: tuple[Path, Path], tmp_path: Path) -> None:
     with pytest.raises(VlaprobeError, match="not an activation store"):
         compare_stores(CompareStoresConfig(stores=(timed, tmp_path)))
     assert main(["compare-stores", str(timed), str(timed), "--probes", str(tmp_path)]) == 2
+    with pytest.raises(VlaprobeError, match="given twice: it would be compared with itself"):
+        compare_stores(
+            CompareStoresConfig(stores=(timed, timed.parent / ".." / timed.parent.name / timed.name))
+        )

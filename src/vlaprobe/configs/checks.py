@@ -248,6 +248,11 @@ def check_run(cfg: RunConfig) -> None:
     check_report(cfg.report, "report.")
     if cfg.control_model:
         check_policy(dataclasses.replace(cfg.collect.policy, model=cfg.control_model), "control-")
+        if cfg.control_model == cfg.collect.policy.model:
+            raise VlaprobeError(
+                f"--control-model {cfg.control_model} is the observed model itself: the control would compare "
+                'the probes with themselves; name another model, or pass --control-model "" to skip it'
+            )
         if cfg.collect.policy.pooling == "action_tokens":
             raise VlaprobeError(
                 '--control-model needs a prompt-pass pooling (not "action_tokens"); pass --control-model "" to skip it'

@@ -205,6 +205,11 @@ def compare_stores(cfg: CompareStoresConfig) -> StoreComparison:
         )
     if cfg.bootstrap < 10:
         raise VlaprobeError(f"--bootstrap must be at least 10, got {cfg.bootstrap}")
+    twice = [str(s) for i, s in enumerate(stores) if s.resolve() in {t.resolve() for t in stores[:i]}]
+    if twice:
+        raise VlaprobeError(
+            f"store {twice[0]} is given twice: it would be compared with itself; pass each store once"
+        )
     for s in stores:
         if not (s / "zarr.json").is_file():
             raise VlaprobeError(
