@@ -4,7 +4,6 @@ even while a step's solve runs (real server processes on 127.0.0.1)."""
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -14,40 +13,10 @@ from pathlib import Path
 import pytest
 from tests.cognition.test_rule_budget import PIGEONS, UNBOUNDED
 from tests.live.fakes import SUCCESS_INIT, real_engine, serve_config
-from websockets.sync.client import ClientConnection, connect
+from tests.live.process import ENV, connect_when_up, start_server, stop
 
 from vlaprobe.configs.monitor import CognitionConfig
 from vlaprobe.errors import VlaprobeError
-
-ROOT = Path(__file__).resolve().parents[2]
-ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), str(ROOT)]), "PYTHONUNBUFFERED": "1"}
-
-SERVER = """
-import socket, sys
-from pathlib import Path
-from tests.live.fakes import real_engine, serve_config
-from vlaprobe.configs.monitor import CognitionConfig, RuleBudget
-from vlaprobe.live.app import Limits, create_app
-from vlaprobe.live.serve import run_server
-run, rules = Path(sys.argv[1]), Path(sys.argv[2])
-cognition = CognitionConfig(rules=(rules,), budget=RuleBudget(solve_seconds=600))
-app = create_app(real_engine(serve_config(run, cognition=cognition)), Limits())
-sock = socket.socket()
-sock.bind(("127.0.0.1", 0))
-print(sock.getsockname()[1], flush=True)
-run_server(app, sock)
-"""
-
-
-def connect_when_up(port: int, proc: subprocess.Popen) -> ClientConnection:
-    deadline = time.monotonic() + 60
-    while True:
-        try:
-            return connect(f"ws://127.0.0.1:{port}/ws", open_timeout=30)
-        except ConnectionRefusedError:  # the port is bound before uvicorn listens on it
-            if time.monotonic() > deadline or proc.poll() is not None:
-                raise
-            time.sleep(0.2)
 
 
 @pytest.mark.serial
@@ -80,16 +49,8 @@ def test_sigterm_stops_the_server_within_seconds_while_a_solve_runs(fake_run: Pa
             ":- pigeon(P).", ":- pigeon(P), busy."
         )
     )
-    proc = subprocess.Popen(
-        [sys.executable, "-c", SERVER, str(fake_run), str(rules)],
-        cwd=ROOT,
-        env=ENV,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    proc, port = start_server(fake_run, tmp_path / "live", tmp_path / "stderr", rules, solve_seconds=600)
     try:
-        port = int(proc.stdout.readline())
         with connect_when_up(port, proc) as ws:
             assert json.loads(ws.recv(timeout=30))["type"] == "hello"
             ws.send(json.dumps({"type": "start", "task": 0, "init": SUCCESS_INIT, "driver": "expert"}))
@@ -99,8 +60,6 @@ def test_sigterm_stops_the_server_within_seconds_while_a_solve_runs(fake_run: Pa
             code = proc.wait(30)
         elapsed = time.monotonic() - start
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        stop(proc)
     assert elapsed < 10, elapsed
-    assert code in (0, -signal.SIGTERM), proc.stderr.read()
+    assert code in (0, -signal.SIGTERM), (tmp_path / "stderr").read_text()
