@@ -24,10 +24,12 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
+from quick import size
+
 THREADS = 1
-BATCH = 16
-ROUNDS = 3
-MATMUL = 768
+BATCH = size(16, 2)
+ROUNDS = size(3, 1)
+MATMUL = size(768, 64)
 
 
 def _interleaved(fns: dict[str, Callable[[], object]], rounds: int) -> dict[str, float]:
