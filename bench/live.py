@@ -89,7 +89,7 @@ class SyntheticSource:
         self.hidden = hidden
 
     def records(self, control: Any) -> Any:
-        from types import SimpleNamespace
+        from vlaprobe.rollout.loop import StepRecord  # the real record: a new field cannot break the bench
 
         rng = np.random.default_rng(0)
         obj, act = (a.copy() for a in self.atoms)
@@ -102,10 +102,12 @@ class SyntheticSource:
             if t % 10 == 0:
                 i = rng.integers(len(obj))
                 obj[i] = ~obj[i]
-            yield SimpleNamespace(
-                t=t, model_image=self.frame, hidden=rng.standard_normal(self.hidden).astype(np.float32),
-                object_atoms=obj.copy(), action_atoms=act.copy(), action=rng.uniform(-1, 1, 7),
-                predicted_action=rng.uniform(-1, 1, 7), success=False, terminal=t == self.steps - 1, timings=None,
+            yield StepRecord(
+                t=t, step=t, raw_image=None, model_image=self.frame,
+                hidden=rng.standard_normal(self.hidden).astype(np.float32), object_atoms=obj.copy(),
+                action_atoms=act.copy(), world=None, proprio=None, action=rng.uniform(-1, 1, 7),
+                predicted_action=rng.uniform(-1, 1, 7), action_tokens=None, success=False,
+                terminal=t == self.steps - 1, perturbed=False, perturbation="", timings=None,
             )  # fmt: skip
 
 

@@ -218,6 +218,22 @@ def test_the_report_shows_the_monitor_section(run: tuple[Path, Path], tmp_path: 
     assert f"step-0 state (the bar)</td><td>{bar:.3f}</td>" in html and f"[{low:+.3f}, {high:+.3f}]" in html
 
 
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [(b"n(0). n(X+1) :- n(X).\n", "did not finish within 1 s: rule"), (b"\xff\n", "not UTF-8")],
+)
+def test_cognition_refuses_bad_rules_in_one_line(
+    run: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str], text: bytes, words: str
+) -> None:
+    store, probes = run
+    rules = tmp_path / "mine.lp"
+    rules.write_bytes(text)
+    argv = ["cognition", "--store", str(store), "--probes", str(probes), "--out", str(tmp_path / "out")]
+    assert cli_main([*argv, "--rules", str(rules), "--budget.ground-seconds", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and words in err and not (tmp_path / "out" / "monitor.json").exists()
+
+
 def test_bad_input_is_a_one_line_error(
     run: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
