@@ -198,6 +198,11 @@ def test_curves_and_intervals_equal_the_evaluation(trained: Path) -> None:
     )
 
 
+def test_a_negative_seed_is_one_line(trained: Path) -> None:  # the fuzzer's find: numpy's ValueError
+    with pytest.raises(VlaprobeError, match="--seed must be at least 0"):
+        hypotheses(HypothesesConfig(probes=trained, seed=-1))
+
+
 @pytest.mark.parametrize(
     ("model_id", "steps", "words"),
     [("other", 24, "observed by model 'other'"), ("synthetic", 20, "another collection")],

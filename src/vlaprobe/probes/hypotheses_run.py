@@ -131,6 +131,8 @@ def hypotheses(cfg: HypothesesConfig) -> Hypotheses:
     """Compute and save ``hypotheses.json`` in the probe folder."""
     if cfg.bootstrap is not None and cfg.bootstrap < 10:
         raise VlaprobeError(f"--bootstrap must be at least 10, got {cfg.bootstrap}")
+    if cfg.seed is not None and cfg.seed < 0:
+        raise VlaprobeError(f"--seed must be at least 0, got {cfg.seed}")
     result = answer_hypotheses(run_curves(Path(cfg.probes), cfg.store, cfg.bootstrap, cfg.seed))
     write_hypotheses(cfg.probes, result)
     return result
