@@ -15,7 +15,9 @@ import time
 import numpy as np
 import torch
 
-ROUNDS = 30
+from quick import size
+
+ROUNDS = size(30, 2)
 INSTRUCTION = "pick up the black bowl between the plate and the ramekin and place it on the plate"
 
 

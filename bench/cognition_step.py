@@ -19,12 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
+from quick import size
 from vlaprobe.cognition import Cognition, CognitionConfig, shipped_rules
 from vlaprobe.configs.monitor import DEFAULT_DEBOUNCE
 from vlaprobe.envs.spatial_scene import SPATIAL_GOAL, SPATIAL_SCENE
 from vlaprobe.symbols import Vocabulary, build_vocabulary
 
-STEPS, WARMUP, MAX_FLIPS = 2000, 100, 12
+STEPS, WARMUP, MAX_FLIPS = size(2000, 20), size(100, 2), 12
 SCENE = SPATIAL_SCENE
 GOAL = SPATIAL_GOAL
 

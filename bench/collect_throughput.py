@@ -21,6 +21,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from quick import QUICK, size
+
 
 def _bytes(path: Path, pattern: str) -> tuple[int, int]:
     """(stored bytes, raw bytes) of the arrays matching ``pattern`` in every episode of a store."""
@@ -43,7 +45,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--tasks", type=int, nargs="+", default=[0])
     parser.add_argument("--episodes-per-task", type=int, default=1)
-    parser.add_argument("--image-size", type=int, default=256)
+    parser.add_argument("--image-size", type=int, default=size(256, 64))
     parser.add_argument("--model", default="tiny")
     args = parser.parse_args()
 
@@ -61,7 +63,8 @@ def main() -> None:
             tasks=tuple(args.tasks),
             episodes_per_task=args.episodes_per_task,
             progress=False,
-            env=EnvConfig(image_size=args.image_size),
+            env=EnvConfig(image_size=args.image_size, max_steps=size(300, 10)),
+            **({"keep_failed": True, "max_tries_per_task": 1} if QUICK else {}),
         )
         start = time.perf_counter()
         r = collect(cfg)

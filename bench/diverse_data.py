@@ -31,11 +31,15 @@ from pathlib import Path
 
 import numpy as np
 
+from quick import size
+
 REPO = Path(__file__).resolve().parents[1]
-WORKERS = 2
+WORKERS = size(2, 1)
+TASKS = size(10, 1)
+MAX_STEPS = size(300, 15)
 IMAGE = 32
-SAMPLED_PER_TASK = 2  # sample indices 0, 1 of every task (20 episodes)
-FIXED_TASKS = (0, 3, 6, 9)  # fixed init state 0 of these tasks: the CPU-per-step reference
+SAMPLED_PER_TASK = size(2, 1)  # sample indices 0, 1 of every task (20 episodes)
+FIXED_TASKS = size((0, 3, 6, 9), (0,))  # fixed init state 0 of these tasks: the CPU-per-step reference
 SAMPLED_INITS = os.environ.get("VLAPROBE_BENCH_INITS", "sampled")
 """``--inits`` of the sampled set: ``sampled`` (default) or ``sampled-swap`` (regions permuted)."""
 FIXED_STORE = Path(os.environ.get("VLAPROBE_FIXED_STORE", REPO / "runs" / "default" / "activations"))
@@ -146,7 +150,7 @@ def run_task(job: tuple[int, str, int, str]) -> list[dict]:
                 NullObserver(),
                 ExpertDriver(env, seed),
                 init=init,
-                max_steps=300,  # type: ignore[arg-type]
+                max_steps=MAX_STEPS,  # type: ignore[arg-type]
                 post_success_steps=10,
                 control=control,
             ):
@@ -277,7 +281,7 @@ def summarize(records: list[dict]) -> dict:
 
 def main() -> None:
     perturb = _experiment()
-    jobs = [(t, "sampled", SAMPLED_PER_TASK, perturb) for t in range(10)] + [
+    jobs = [(t, "sampled", SAMPLED_PER_TASK, perturb) for t in range(TASKS)] + [
         (t, "fixed", 1, perturb) for t in FIXED_TASKS
     ]
     start = time.perf_counter()

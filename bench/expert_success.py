@@ -19,7 +19,9 @@ import sys
 import time
 from pathlib import Path
 
-MAX_STEPS = 300  # episode budget after settling (LiberoTaskEnv's default max_steps)
+from quick import size
+
+MAX_STEPS = size(300, 20)  # episode budget after settling (LiberoTaskEnv's default max_steps)
 
 
 def run_task(job: tuple[int, list[int], int]) -> list[dict]:
@@ -60,10 +62,10 @@ def run_task(job: tuple[int, list[int], int]) -> list[dict]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--inits", type=int, default=5, help="first N init states of every task")
+    parser.add_argument("--inits", type=int, default=size(5, 1), help="first N init states of every task")
     parser.add_argument("--all", action="store_true", help="all init states (50 per task)")
-    parser.add_argument("--tasks", type=str, default="0-9", help="task indices, e.g. 0-9 or 2,4")
-    parser.add_argument("--procs", type=int, default=2, help="worker processes (one env each)")
+    parser.add_argument("--tasks", type=str, default=size("0-9", "0"), help="task indices, e.g. 0-9 or 2,4")
+    parser.add_argument("--procs", type=int, default=size(2, 1), help="worker processes (one env each)")
     parser.add_argument("--seed", type=int, default=0, help="expert seed")
     args = parser.parse_args()
 

@@ -16,15 +16,16 @@ import time
 
 import numpy as np
 
+from quick import size
 from vlaprobe.configs.env import SUITES, EnvConfig
 from vlaprobe.envs.libero import LiberoTaskEnv
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--suites", nargs="+", default=list(SUITES), choices=SUITES)
+    parser.add_argument("--suites", nargs="+", default=size(list(SUITES), ["libero_spatial"]), choices=SUITES)
     parser.add_argument("--tasks", nargs="+", type=int, default=[0], help="task indices of each suite")
-    parser.add_argument("--inits", type=int, default=50, help="init states per task (LIBERO has 50)")
+    parser.add_argument("--inits", type=int, default=size(50, 2), help="init states per task (LIBERO has 50)")
     args = parser.parse_args()
 
     rows = []

@@ -15,14 +15,17 @@ import time
 
 import numpy as np
 
+from quick import size
 from vlaprobe.configs.env import EnvConfig
 from vlaprobe.envs.libero import LiberoTaskEnv
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--states", type=int, default=50, help="world states to snapshot")
-    parser.add_argument("--repeats", type=int, default=40, help="passes of the labeler over all states")
+    parser.add_argument("--states", type=int, default=size(50, 3), help="world states to snapshot")
+    parser.add_argument(
+        "--repeats", type=int, default=size(40, 2), help="passes of the labeler over all states"
+    )
     args = parser.parse_args()
 
     rng = np.random.default_rng(0)

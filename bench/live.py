@@ -35,7 +35,12 @@ from typing import Any
 
 import numpy as np
 
-STEPS_FAST, HZ_FAST, STEPS_LIVE = 300, 30.0, 40
+from quick import size
+
+STEPS_FAST, HZ_FAST, STEPS_LIVE = size(300, 20), 30.0, size(40, 6)
+SLOW_STEPS, PAUSE_AT, PAUSE_S = size(600, 30), size(150, 10), size(10.0, 1.0)
+"""The slow-client case: steps of its episode, the step at which one client stops reading, for how long."""
+STORE_EPISODES = size(16, 2)
 
 
 def random_probes(folder: Path, model_id: str, layers: int, hidden: int, atoms: dict[str, list[str]]) -> Any:
@@ -72,12 +77,19 @@ class SyntheticSource:
     """LIBERO-shaped steps at a fixed rate: a real frame and atoms, a few atoms flipping, tiny-model hidden states."""
 
     def __init__(
-        self, spec: Any, frame: np.ndarray, atoms: tuple[np.ndarray, np.ndarray], steps: int, hz: float
+        self,
+        spec: Any,
+        frame: np.ndarray,
+        atoms: tuple[np.ndarray, np.ndarray],
+        steps: int,
+        hz: float,
+        hidden: tuple[int, int],
     ):
         self.spec, self.frame, self.atoms, self.steps, self.hz = spec, frame, atoms, steps, hz
+        self.hidden = hidden
 
     def records(self, control: Any) -> Any:
-        from types import SimpleNamespace
+        from vlaprobe.rollout.loop import StepRecord  # the real record: a new field cannot break the bench
 
         rng = np.random.default_rng(0)
         obj, act = (a.copy() for a in self.atoms)
@@ -90,10 +102,12 @@ class SyntheticSource:
             if t % 10 == 0:
                 i = rng.integers(len(obj))
                 obj[i] = ~obj[i]
-            yield SimpleNamespace(
-                t=t, model_image=self.frame, hidden=rng.standard_normal((33, 64)).astype(np.float32),
-                object_atoms=obj.copy(), action_atoms=act.copy(), action=rng.uniform(-1, 1, 7),
-                predicted_action=rng.uniform(-1, 1, 7), success=False, terminal=t == self.steps - 1, timings=None,
+            yield StepRecord(
+                t=t, step=t, raw_image=None, model_image=self.frame,
+                hidden=rng.standard_normal(self.hidden).astype(np.float32), object_atoms=obj.copy(),
+                action_atoms=act.copy(), world=None, proprio=None, action=rng.uniform(-1, 1, 7),
+                predicted_action=rng.uniform(-1, 1, 7), action_tokens=None, success=False,
+                terminal=t == self.steps - 1, perturbed=False, perturbation="", timings=None,
             )  # fmt: skip
 
 
@@ -115,7 +129,7 @@ async def _client(url: str, i: int, start: str | None, pause_at: int | None, rea
                     (msg["t"], (now - msg["ready_at"]) * 1e3, now, msg["image"] is not None, msg["ready_at"])
                 )
                 if msg["t"] == pause_at:
-                    await asyncio.sleep(10.0)  # this client reads nothing for 10 s
+                    await asyncio.sleep(PAUSE_S)  # this client reads nothing for PAUSE_S s
             elif msg["type"] == "episode_end":
                 break
     out[i] = rows
@@ -194,26 +208,34 @@ def readers_main(base: str, ids: list[str], n: int, started: Any, stop: Any, res
 
 
 def synthetic_store(
-    path: Path, frame: np.ndarray, atoms: dict, obj: np.ndarray, act: np.ndarray, goal: Any
+    path: Path,
+    frame: np.ndarray,
+    atoms: dict,
+    obj: np.ndarray,
+    act: np.ndarray,
+    goal: Any,
+    shape: tuple[str, int, int],
 ) -> list[str]:
-    """A store of 16 LIBERO-shaped episodes (150 steps, real frame and atoms, tiny-model hidden states)."""
+    """A store of 16 LIBERO-shaped episodes (150 steps, real frame and atoms, random hidden states of the
+    observer's ``shape``: model id, hidden states, hidden size)."""
 
     from vlaprobe.collection.store import EpisodeInfo, episode_key
     from vlaprobe.collection.writer import StoreWriter
 
+    model_id, layers, hidden = shape
     meta = {
-        "atom_names": atoms, "model_id": "tiny-openvla-seed0", "model": {"name": "tiny"}, "num_hidden_states": 33,
-        "hidden_size": 64, "pooling": "last_prompt", "driver": "expert", "suite": "libero_spatial",
+        "atom_names": atoms, "model_id": model_id, "model": {"name": model_id}, "num_hidden_states": layers,
+        "hidden_size": hidden, "pooling": "last_prompt", "driver": "expert", "suite": "libero_spatial",
         "env": {"image_size": 256}, "seed": 0,
     }  # fmt: skip
     rng = np.random.default_rng(2)
-    length = 150
+    length = size(150, 10)
     with StoreWriter.open(path, meta) as w:
-        for init in range(16):
+        for init in range(STORE_EPISODES):
             o = np.repeat(obj[None], length, 0)
             o[rng.integers(length, size=20), rng.integers(len(obj), size=20)] ^= True
             arrays = {
-                "hidden": rng.standard_normal((33, length, 64)).astype(np.float16),
+                "hidden": rng.standard_normal((layers, length, hidden)).astype(np.float16),
                 "object_atoms": o, "action_atoms": np.repeat(act[None], length, 0),
                 "image": np.repeat(frame[None], length, 0), "action": rng.uniform(-1, 1, (length, 7)).astype(np.float32),
                 "predicted_action": rng.uniform(-1, 1, (length, 7)).astype(np.float32),
@@ -221,7 +243,7 @@ def synthetic_store(
             }  # fmt: skip
             info = EpisodeInfo(episode_key(0, init), 0, init, 0, False, length, seed=init, driver="expert")
             w.write_episode(info, arrays, {"instruction": "bench", "goal": dataclasses.asdict(goal)})
-    return ["store-" + episode_key(0, init) for init in range(16)]
+    return ["store-" + episode_key(0, init) for init in range(STORE_EPISODES)]
 
 
 def store_reads_case(url: str, base: str, ids: list[str], start: str, wait_idle: Any) -> dict:
@@ -270,11 +292,13 @@ def main() -> None:
         os.environ["VLAPROBE_LIBERO_ASSETS"] = str(shared)
     from vlaprobe.cognition import Cognition
     from vlaprobe.cognition.readout import ProbeReadout
+    from vlaprobe.configs.policy import PolicyConfig
     from vlaprobe.configs.serve import ServeConfig
     from vlaprobe.envs import make_env
     from vlaprobe.live.app import create_app
     from vlaprobe.live.pipeline import EpisodeSpec
     from vlaprobe.live.serve import build_engine, limits_of
+    from vlaprobe.policies import make_policy
     from vlaprobe.rollout import EpisodeControl, make_driver, run_episode
 
     tmp = Path(tempfile.mkdtemp(prefix="bench-live-"))
@@ -287,7 +311,7 @@ def main() -> None:
     # probes and cognition alone
     big = ProbeReadout(random_probes(tmp / "big", "openvla-7b", 33, 4096, atoms))
     hidden = np.random.default_rng(0).standard_normal((33, 4096)).astype(np.float32)
-    probe_ms = median_ms(lambda: big.assign(hidden), 300)
+    probe_ms = median_ms(lambda: big.assign(hidden), size(300, 5))
     cog = Cognition(atoms["object"], atoms["action"], env.goal, cfg.cognition)
     obj, act = env.labeler(env.world_state())
     rng = np.random.default_rng(1)
@@ -298,14 +322,17 @@ def main() -> None:
         state[rng.integers(len(state), size=3)] ^= True  # a few lasting flips per step, as from probes
         cog.step(state, act)
 
-    cognition_ms = median_ms(cog_step, 300)
+    cognition_ms = median_ms(cog_step, size(300, 5))
 
-    # the server: real engine (tiny model, LIBERO, random probes of the tiny model's shapes, a store)
-    probes = random_probes(cfg.probes, "tiny-openvla-seed0", 33, 64, atoms)
+    # the server: real engine (the default observer, LIBERO, random probes of its shapes, a store); the probes
+    # and the store take the observer's id and shapes from the loaded model, so a new default cannot break it
+    policy = make_policy(PolicyConfig(model=cfg.model, device="cpu", seed=cfg.seed))
+    shape = (policy.model_id, policy.num_hidden_states, policy.hidden_size)
+    probes = random_probes(cfg.probes, *shape, atoms)
     frame = np.ascontiguousarray(first.image[::-1, ::-1][16:240, 16:240])
-    store_ids = synthetic_store(tmp / "store", frame, atoms, obj, act, env.goal)
+    store_ids = synthetic_store(tmp / "store", frame, atoms, obj, act, env.goal, shape)
     cfg = dataclasses.replace(cfg, store=tmp / "store")
-    engine = build_engine(cfg, probes)
+    engine = build_engine(cfg, probes, policy=policy)
     app = create_app(engine, limits_of(cfg, None))
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning"))
     threading.Thread(target=server.run, daemon=True).start()
@@ -320,7 +347,7 @@ def main() -> None:
         return lambda: session.start(
             0,
             "bench",
-            lambda: SyntheticSource(spec, frame, (obj, act), steps, HZ_FAST),
+            lambda: SyntheticSource(spec, frame, (obj, act), steps, HZ_FAST, shape[1:]),
             EpisodeControl(),
             False,
         )
@@ -333,12 +360,12 @@ def main() -> None:
     wait_idle()
     r8 = with_clients(url, 8, synthetic(STEPS_FAST))
     wait_idle()
-    pause_at = 150  # 5 s in; 10 s without reading; the episode lasts 20 s
-    rs = with_clients(url, 8, synthetic(600), pause_at=pause_at)
+    pause_at = PAUSE_AT  # 5 s in; 10 s without reading; the episode lasts 20 s
+    rs = with_clients(url, 8, synthetic(SLOW_STEPS), pause_at=pause_at)
     wait_idle()
     pause_start = next(r[2] for r in rs[0] if r[0] == pause_at)
     before = [sum(pause_start - 3 <= r[2] < pause_start for r in rs[i]) / 3 for i in range(1, 8)]
-    during = [sum(pause_start <= r[2] < pause_start + 10 for r in rs[i]) / 10 for i in range(1, 8)]
+    during = [sum(pause_start <= r[2] < pause_start + PAUSE_S for r in rs[i]) / PAUSE_S for i in range(1, 8)]
     slow_images = sum(r[3] for r in rs[0] if r[0] > pause_at)
 
     # rate: the bare step loop vs live with 8 clients, same task/init/steps, bare twice around live
@@ -376,7 +403,7 @@ def main() -> None:
         "slow_client_other_rate_before": round(statistics.mean(before), 2),
         "slow_client_other_rate_during": round(statistics.mean(during), 2),
         "slow_client_other_rate_ratio": round(statistics.mean(during) / statistics.mean(before), 3),
-        "slow_client_lost_states": 600 - len(rs[0]),
+        "slow_client_lost_states": SLOW_STEPS - len(rs[0]),
         "slow_client_images_after_pause": int(slow_images),
         **store_reads,
         "steps_per_client": {"fast": STEPS_FAST, "hz": HZ_FAST, "live": STEPS_LIVE},

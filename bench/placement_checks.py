@@ -17,9 +17,12 @@ import math
 import re
 import sys
 
-SAMPLES = 30
+from quick import size
+
+SAMPLES = size(30, 1)
 """Sample indices per task. 10 (100 resets) left the rate's 95% interval ~±5 points wide around a 5% target."""
-FIXED = 50
+FIXED = size(50, 1)
+TASKS = size(10, 1)
 
 
 def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -40,7 +43,7 @@ def main() -> None:
     out: dict[str, object] = {}
     for inits in ("sampled", "sampled-swap"):
         draws, rejected, reasons = 0, 0, collections.Counter()
-        for task in range(10):
+        for task in range(TASKS):
             with LiberoTaskEnv(task, EnvConfig(render=False, inits=inits)) as env:  # type: ignore[arg-type]
                 for i in range(SAMPLES):
                     env.reset(i)
@@ -53,17 +56,17 @@ def main() -> None:
                         file=sys.stderr,
                     )
         low, high = wilson(rejected, draws)
-        out[inits] = {"resets": 10 * SAMPLES, "draws": draws, "rejected": rejected, "rate": rejected / draws,
+        out[inits] = {"resets": TASKS * SAMPLES, "draws": draws, "rejected": rejected, "rate": rejected / draws,
                       "rate_95": [round(low, 4), round(high, 4)], "reasons": dict(reasons.most_common())}  # fmt: skip
     failed, reasons = [], collections.Counter()
-    for task in range(10):
+    for task in range(TASKS):
         with LiberoTaskEnv(task, EnvConfig(render=False)) as env:
             for i in range(FIXED):
                 problems = env.fixed_layout_problems(i)
                 if problems:
                     failed.append({"task": task, "init": i, "problems": problems})
                     reasons.update(_reason(p) for p in problems)
-    out["libero_fixed_inits"] = {"layouts": 10 * FIXED, "rejected": len(failed), "failed": failed,
+    out["libero_fixed_inits"] = {"layouts": TASKS * FIXED, "rejected": len(failed), "failed": failed,
                                  "reasons": dict(reasons.most_common())}  # fmt: skip
     print(json.dumps(out))
 

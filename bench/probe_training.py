@@ -26,6 +26,7 @@ import time
 import numpy as np
 import torch
 
+import quick
 from vlaprobe.configs.train import ProbeConfig
 from vlaprobe.probes.data import synthetic_data
 from vlaprobe.probes.evaluate import column_groups
@@ -62,13 +63,15 @@ def reference(x: np.ndarray, y: np.ndarray, train: np.ndarray, test: np.ndarray)
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--hidden", type=int, default=256, help="hidden size")
-    parser.add_argument("--reference-layers", type=int, default=2, help="layers scikit-learn is timed on")
+    parser.add_argument("--hidden", type=int, default=quick.size(256, 16), help="hidden size")
+    parser.add_argument(
+        "--reference-layers", type=int, default=quick.size(2, 1), help="layers scikit-learn is timed on"
+    )
     parser.add_argument("--threads", type=int, default=1, help="torch (and BLAS) threads for every part")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     data = synthetic_data(
-        num_tasks=10, episodes_per_task=16, steps_per_episode=50, num_layers=33, hidden_size=args.hidden,
+        num_tasks=10, episodes_per_task=quick.size(16, 3), steps_per_episode=quick.size(50, 10), num_layers=33, hidden_size=args.hidden,
         num_object=224, num_action=12, constant_fraction=0.55, signal=3.0, label_noise=0.0, seed=0,
     )  # fmt: skip
     fold = split_episodes(data.episode_tasks, test_fraction=0.2, folds=1, seed=0)[0]

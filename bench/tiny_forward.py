@@ -27,7 +27,9 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-ROUNDS = 20
+from quick import size
+
+ROUNDS = size(20, 2)
 INSTRUCTION = "pick up the black bowl between the plate and the ramekin and place it on the plate"
 
 

@@ -30,12 +30,13 @@ from fastapi import FastAPI, WebSocket
 from fastapi.staticfiles import StaticFiles
 from PIL import Image
 
+from quick import size
 from vlaprobe.envs.spatial_scene import SPATIAL_SCENE
 from vlaprobe.live import protocol as P
 from vlaprobe.symbols import build_vocabulary
 
 UI = Path(__file__).resolve().parents[1] / "src" / "vlaprobe" / "live" / "ui"
-STEPS, HZ, MAX_FLIPS = 300, 10.0, 12
+STEPS, HZ, MAX_FLIPS = size(300, 40), 10.0, 12
 SCENE = SPATIAL_SCENE
 ARGS = [
     "--headless",
@@ -240,7 +241,7 @@ def main() -> None:
             slider.focus()
             page.keyboard.press("Home")
             times = []
-            for k in range(1, 60):
+            for k in range(1, min(60, STEPS)):  # quick mode: fewer steps than presses
                 t0 = time.perf_counter()
                 page.keyboard.press("ArrowRight")
                 page.wait_for_function(

@@ -181,6 +181,8 @@ def test_train_options_out_of_range(
         (["collect", "--first-init", "-1"], "--first-init must be at least 0"),
         (["save-tiny", "--patch-size", "13"], "--patch-size must divide the 224 px image"),
         (["run", "--control-model", "tiny", "--pooling", "action_tokens"], "--control-model needs"),
+        (["run", "--control-model", "tiny-libero"], "is the observed model itself"),
+        (["run", "--train.probe.memory-mb", "-inf"], "--train.probe.memory-mb must be a positive finite"),
     ],
 )
 def test_collect_report_run_options_out_of_range(

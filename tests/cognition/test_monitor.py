@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import re
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +47,7 @@ def labels() -> np.ndarray:
     return np.array([np.concatenate(arrays(s)) for s in STEPS])
 
 
-def write_run(root: Path) -> tuple[Path, Path]:
+def write_run(root: Path, first_seed: int = 0) -> tuple[Path, Path]:
     """Three episodes; the hidden state spells the labels (+-1), except where the probes should err."""
     meta = {
         "atom_names": ATOMS, "model_id": "fake", "model": {"model_id": "fake"}, "num_hidden_states": 2,
@@ -63,7 +65,14 @@ def write_run(root: Path) -> tuple[Path, Path]:
                 x[:, VOCAB.object_atoms.index(next(iter(PLACED)))] = -1
             hidden = np.stack([x, x]).astype(np.float16)
             info = EpisodeInfo(
-                key=key, task=0, init=e, attempt=0, success=True, length=len(y), seed=e, driver="expert"
+                key=key,
+                task=0,
+                init=e,
+                attempt=0,
+                success=True,
+                length=len(y),
+                seed=first_seed + e,
+                driver="expert",
             )
             arrays_ = {"hidden": hidden, "object_atoms": y[:, :n_obj], "action_atoms": y[:, n_obj:]}
             writer.write_episode(info, arrays_, {"goal": {"pick": "akita_black_bowl_1", "place": PLATE}})
@@ -200,6 +209,22 @@ def test_the_report_shows_the_monitor_section(run: tuple[Path, Path], tmp_path: 
     assert f"step-0 state (the bar)</td><td>{bar:.3f}</td>" in html and f"[{low:+.3f}, {high:+.3f}]" in html
 
 
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [(b"n(0). n(X+1) :- n(X).\n", "did not finish within 1 s: rule"), (b"\xff\n", "not UTF-8")],
+)
+def test_cognition_refuses_bad_rules_in_one_line(
+    run: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str], text: bytes, words: str
+) -> None:
+    store, probes = run
+    rules = tmp_path / "mine.lp"
+    rules.write_bytes(text)
+    argv = ["cognition", "--store", str(store), "--probes", str(probes), "--out", str(tmp_path / "out")]
+    assert cli_main([*argv, "--rules", str(rules), "--budget.ground-seconds", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and words in err and not (tmp_path / "out" / "monitor.json").exists()
+
+
 def test_bad_input_is_a_one_line_error(
     run: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -234,11 +259,28 @@ def test_goal_detection_on_succeeding_and_failing_episodes_has_known_figures() -
 
 def test_extra_stores_join_the_figures(run: tuple[Path, Path], tmp_path: Path) -> None:
     store, probes = run
-    result = monitor(MonitorConfig(store=store, probes=probes, extra_stores=(store,), out=tmp_path))
+    extra, _ = write_run(tmp_path / "more", first_seed=10)  # other episodes under the same keys
+    result = monitor(MonitorConfig(store=store, probes=probes, extra_stores=(extra,), out=tmp_path))
     assert result.episodes == 6 == result.probes.goal_detection.episodes
     assert [e.key for e in result.per_episode][3:] == [
-        f"{store.name}/{e.key}" for e in result.per_episode[:3]
+        f"{extra.name}/{e.key}" for e in result.per_episode[:3]
     ]
+
+
+def test_extra_stores_that_repeat_episodes_are_refused(run: tuple[Path, Path], tmp_path: Path) -> None:
+    store, probes = run
+    copy = tmp_path / "copy"
+    shutil.copytree(store, copy)
+    for extra, words in (((store,), "trained on its episodes"), ((copy,), "trained on its episodes")):
+        with pytest.raises(
+            VlaprobeError,
+            match=f"--extra-stores .* repeats 3 episode.s. of {re.escape(str(store))} .*{words}",
+        ):
+            monitor(MonitorConfig(store=store, probes=probes, extra_stores=extra, out=tmp_path / "out"))
+    more, _ = write_run(tmp_path / "more", first_seed=10)
+    with pytest.raises(VlaprobeError, match="counted twice"):
+        monitor(MonitorConfig(store=store, probes=probes, extra_stores=(more, more), out=tmp_path / "out"))
+    assert not (tmp_path / "out").exists()
 
 
 def test_the_gain_interval_over_episodes_has_known_answers() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -55,12 +56,68 @@ def test_training_with_leave_one_task_out_tests_every_episode_in_its_tasks_fold(
     assert best["value"] > 0.6  # the synthetic signal is shared by all tasks: it transfers
 
 
-def _evaluation(folder: Path, best: int, values: list[list[float]], predicates: list[str]) -> Path:
+def _evaluation(
+    folder: Path, best: int, values: list[list[float]], predicates: list[str], **changes: object
+) -> Path:
     """A probe folder whose evaluation.json (written by write_evaluation) has these per-predicate figures."""
     layers = list(range(len(values)))
     head = head_result(predicates, values, best, layers)
-    write_evaluation(folder, evaluation_with_split(["e0"], layers=layers, heads={"object": head}))
+    ev = evaluation_with_split(["e0"], layers=layers, heads={"object": head})
+    write_evaluation(folder, dataclasses.replace(ev, **changes))
     return folder
+
+
+def _by(split: str) -> dict:
+    return {"split": {"by": split}}
+
+
+@pytest.mark.parametrize(
+    ("within", "across", "words"),
+    [
+        ("episode", "leave-one-task-out", None),
+        ("leave-one-task-out", "episode", "the folders are swapped"),
+        ("episode", "episode", "both trained with --split.by episode"),
+    ],
+)
+def test_the_two_folders_must_be_a_within_and_a_cross_task_pair(
+    tmp_path: Path, within: str, across: str, words: str | None
+) -> None:
+    from vlaprobe.probes.cross_task import split_comparison
+
+    w = _evaluation(tmp_path / "w", 0, [[0.9]], ["on"], config=_by(within))
+    a = _evaluation(tmp_path / "a", 0, [[0.7]], ["on"], config=_by(across))
+    if words is None:
+        assert split_comparison(w, a)[0].drop == pytest.approx(0.2)
+        with pytest.raises(VlaprobeError, match="the same folder"):
+            split_comparison(w, tmp_path / "a" / ".." / "w")
+        return
+    with pytest.raises(VlaprobeError, match=words):
+        split_comparison(w, a)
+
+
+def test_folders_of_another_model_or_store_are_refused(tmp_path: Path) -> None:
+    from vlaprobe.probes.cross_task import split_comparison
+
+    w = _evaluation(tmp_path / "w", 0, [[0.9]], ["on"])
+    other = _evaluation(tmp_path / "m", 0, [[0.7]], ["on"], model_id="other")
+    with pytest.raises(VlaprobeError, match=r"different data \(model 'fake' vs 'other'"):
+        split_comparison(w, other)
+    ev = evaluation_with_split(["e0"])
+    fewer = _evaluation(
+        tmp_path / "d", 0, [[0.7]], ["on"], dataset=dataclasses.replace(ev.dataset, episodes=1)
+    )
+    with pytest.raises(VlaprobeError, match="different data"):
+        split_comparison(w, fewer)
+
+
+@pytest.mark.parametrize("text", ["{}", "", "[1]", '{"format": "vlaprobe-evaluation", "format_version": 4}'])
+def test_an_empty_or_malformed_evaluation_is_one_line(tmp_path: Path, text: str) -> None:
+    from vlaprobe.cli import main
+
+    w = _evaluation(tmp_path / "w", 0, [[0.9]], ["on"])
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "evaluation.json").write_text(text)
+    assert main(["compare-splits", "--within", str(w), "--across", str(tmp_path / "a")]) == 2
 
 
 def test_split_comparison_reads_each_folder_at_its_best_layer(tmp_path: Path) -> None:

@@ -4,6 +4,7 @@ writers and ``vlaprobe train``, curves and intervals equal to ``evaluation.json`
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -117,17 +118,17 @@ def test_too_few_test_episodes_cannot_tell() -> None:
 
 
 # ----- on a store written by the real writers, probes trained by `vlaprobe train` ----------------------------
-def _write_store(path: Path) -> None:
+def _write_store(path: Path, model_id: str = "synthetic", steps: int = 24) -> None:
     """Synthetic episodes with planted structure; object atom 0 is true on two whole training episodes and
     false on every test episode: one class on the scored rows."""
-    data = synthetic_data(4, 5, 24, num_layers=4, hidden_size=16, num_object=10, num_action=4, signal=6.0)
+    data = synthetic_data(4, 5, steps, num_layers=4, hidden_size=16, num_object=10, num_action=4, signal=6.0)
     (fold,) = make_folds(data.episode_tasks, SplitConfig(), seed=0)  # the split `vlaprobe train` makes
     atom0 = np.isin(data.episode, fold.train[:2])
     data.labels["object"][:, 0] = atom0
     meta = {
         "atom_names": data.atom_names,
-        "model_id": "synthetic",
-        "model": {"model_id": "synthetic"},
+        "model_id": model_id,
+        "model": {"model_id": model_id},
         "num_hidden_states": 4,
         "hidden_size": 16,
         "pooling": "last_prompt",
@@ -195,3 +196,41 @@ def test_curves_and_intervals_equal_the_evaluation(trained: Path) -> None:
     assert not np.allclose(
         percentile_interval(other.resamples["object"])[0], percentile_interval(curves.resamples["object"])[0]
     )
+
+
+def test_a_negative_seed_is_one_line(trained: Path) -> None:  # the fuzzer's find: numpy's ValueError
+    with pytest.raises(VlaprobeError, match="--seed must be at least 0"):
+        hypotheses(HypothesesConfig(probes=trained, seed=-1))
+
+
+@pytest.mark.parametrize(
+    ("model_id", "steps", "words"),
+    [("other", 24, "observed by model 'other'"), ("synthetic", 20, "another collection")],
+)
+def test_a_store_the_probes_were_not_trained_on_is_refused(
+    trained: Path, tmp_path: Path, model_id: str, steps: int, words: str
+) -> None:
+    _write_store(tmp_path / "other", model_id=model_id, steps=steps)
+    with pytest.raises(VlaprobeError, match=words):
+        hypotheses(HypothesesConfig(probes=trained, store=tmp_path / "other"))
+    assert not (trained / "hypotheses.json").exists() or run_curves(
+        trained, None
+    )  # the folder's own still runs
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("{}", "is not a vlaprobe evaluation"),
+        ("", "cannot read"),
+        ('{"format": "vlaprobe-evaluation", "format_version": 4}', "is damaged"),
+    ],
+)
+def test_an_empty_or_malformed_evaluation_is_one_line(
+    trained: Path, tmp_path: Path, text: str, words: str
+) -> None:
+    folder = tmp_path / "probes"
+    shutil.copytree(trained, folder)
+    (folder / "evaluation.json").write_text(text)
+    with pytest.raises(VlaprobeError, match=words):
+        hypotheses(HypothesesConfig(probes=folder))

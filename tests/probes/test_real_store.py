@@ -143,6 +143,17 @@ def test_store_errors_are_one_line(tmp_path: Path) -> None:
         train_module.train_probes(TrainConfig(store=tmp_path / "s", probe=ProbeConfig(device="gpu")))
 
 
+def test_an_observer_store_of_the_same_model_is_refused(tmp_path: Path) -> None:
+    write_store(tmp_path / "s")
+    write_store(tmp_path / "copy")  # the same observer again, under another folder
+    for observer in (tmp_path / "s", tmp_path / "copy"):
+        with pytest.raises(VlaprobeError, match=r"the same model .* compare the probes with themselves"):
+            train_module.train_probes(
+                TrainConfig(store=tmp_path / "s", observer_store=observer, out=tmp_path / "p")
+            )
+    assert not (tmp_path / "p").exists()
+
+
 @pytest.fixture(scope="module")
 def real_store(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Two tasks x two short expert episodes (kept although they end before success): a few hundred steps."""

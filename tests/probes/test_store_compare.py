@@ -100,3 +100,13 @@ def test_bad_input(stores: tuple[Path, Path], tmp_path: Path) -> None:
     with pytest.raises(VlaprobeError, match="not an activation store"):
         compare_stores(CompareStoresConfig(stores=(timed, tmp_path)))
     assert main(["compare-stores", str(timed), str(timed), "--probes", str(tmp_path)]) == 2
+    for flags in (
+        ["--seed", "-1"],
+        ["--test-fraction", "-0"],
+        ["--test-fraction", "nan"],
+    ):  # the fuzzer's finds
+        assert main(["compare-stores", str(timed), str(stores[1]), *flags]) == 2
+    with pytest.raises(VlaprobeError, match="given twice: it would be compared with itself"):
+        compare_stores(
+            CompareStoresConfig(stores=(timed, timed.parent / ".." / timed.parent.name / timed.name))
+        )

@@ -89,7 +89,12 @@ class Cognition:
             fixed = ~np.concatenate(masks)
         self.beliefs = BeliefStore(self.atoms, self.config.debounce, fixed)
         self.rules = RuleEngine(
-            self.atoms, goal, self.config.rules, self.config.shipped_rules, self.config.recent_steps
+            self.atoms,
+            goal,
+            self.config.rules,
+            self.config.shipped_rules,
+            self.config.recent_steps,
+            self.config.budget,
         )
         self.subgoals = SubgoalTracker(
             self.beliefs.index, goal, self.config.stall_steps, self.config.regression_steps

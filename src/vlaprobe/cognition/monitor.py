@@ -30,7 +30,7 @@ from vlaprobe.files import JsonObject, from_json, read_versioned, write_atomic
 from vlaprobe.probes.bootstrap import bootstrap_weights, interval, resample_sums
 
 if TYPE_CHECKING:
-    from vlaprobe.collection.store import ActivationStore
+    from vlaprobe.collection.store import ActivationStore, EpisodeInfo
     from vlaprobe.probes.probeset import ProbeSet
     from vlaprobe.reports.sections import Section
 
@@ -230,6 +230,33 @@ def _check_store(store: ActivationStore, readout: ProbeReadout, path: Path) -> N
             )
 
 
+def _identity(info: EpisodeInfo) -> tuple[str, int, int, int, int, int]:
+    """What tells one recorded episode from another: a copy of a store repeats it under any path."""
+    return (info.key, info.task, info.init, info.attempt, info.seed, info.length)
+
+
+def _check_new_episodes(extra: ActivationStore, path: Path, seen: dict[tuple, str], store: Path) -> None:
+    """Refuse an extra store that repeats episodes of --store (the probes' own, some trained on) or of another
+    extra store: counted twice, or trained-on episodes counted as held out."""
+    repeated: dict[str, list[str]] = {}
+    for info in extra.episodes():
+        where = seen.get(_identity(info))
+        if where is not None:
+            repeated.setdefault(where, []).append(info.key)
+        seen[_identity(info)] = str(path)
+    for where, keys in repeated.items():
+        shown = ", ".join(keys[:3]) + (", ..." if len(keys) > 3 else "")
+        raise VlaprobeError(
+            f"--extra-stores {path} repeats {len(keys)} episode(s) of {where} ({shown}): "
+            + (
+                "the probes were trained on its episodes, so they would count as held out"
+                if where == str(store)
+                else "they would be counted twice"
+            )
+            + "; pass only stores of other episodes (e.g. policy-driven ones)"
+        )
+
+
 def _pair(
     store: ActivationStore,
     key: str,
@@ -348,9 +375,11 @@ def monitor(cfg: MonitorConfig) -> MonitorResult:
     keys, held_out = _episodes(cfg, store, readout.probes)
     require_intact(cfg.store, read=True, keys=keys)  # a missing chunk would read as fill values
     sources = [(store, keys, str(cfg.store), "")]
+    seen = {_identity(e): str(cfg.store) for e in store.episodes()}
     for path in cfg.extra_stores:
         extra = ActivationStore.open(path)
         _check_store(extra, readout, path)
+        _check_new_episodes(extra, path, seen, cfg.store)
         require_intact(path, read=True, keys=[e.key for e in extra.episodes()])
         sources.append((extra, [e.key for e in extra.episodes()], str(path), f"{Path(path).name}/"))
     ccfg = cfg.cognition()

@@ -21,7 +21,9 @@ import clingo
 import clingo.ast
 import numpy as np
 
+from vlaprobe.cognition.budget import check_budget, check_grounding, read_rules_text, solve_within
 from vlaprobe.cognition.terms import canonical_name, diarc_name, diarc_term
+from vlaprobe.configs.monitor import RuleBudget
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.symbols.vocabulary import PREDICATES, parse_atom
 from vlaprobe.symbols.world import Goal
@@ -147,16 +149,23 @@ class RuleEngine:
         rules: Sequence[str | Path] = (),
         shipped: bool = True,
         recent_steps: int = 10,
+        budget: RuleBudget | None = None,
     ) -> None:
         if recent_steps < 0:
             raise VlaprobeError(f"recent_steps must be >= 0, got {recent_steps}")
         self.atoms = tuple(atoms)
         self.recent_steps = int(recent_steps)
-        self.files = ([shipped_rules("lp")] if shipped else []) + [Path(p) for p in rules]
+        self.budget = budget or RuleBudget()
+        check_budget(self.budget)
+        self.users = tuple(Path(p) for p in rules)
+        """The user's rules files: grounded first in a child process, solved within the budget."""
+        self.files = ([shipped_rules("lp")] if shipped else []) + list(self.users)
         uses: set[tuple[str, str | None]] = set()
         for path in self.files:
             if not path.is_file():
-                raise VlaprobeError(f"rules file not found: {path}; pass an existing .lp file to --rules")
+                what = "is a folder" if path.is_dir() else "not found"
+                raise VlaprobeError(f"rules file {what}: {path}; pass an existing .lp file to --rules")
+            read_rules_text(path)
             uses |= _scan(path)
         for a in self.atoms:
             diarc_term(a)  # every name must be an ASP/Prolog identifier
@@ -183,6 +192,8 @@ class RuleEngine:
             if on
         ]
         program += ["#show violation/2.", "#show involves/3."]
+        if self.users:
+            check_grounding("\n".join(program), self.files, self.users, self.budget)
         log = _Log()
         self._ctl = clingo.Control(["--warn=atom-undefined"], logger=log, message_limit=1000)
         self._ctl.add("base", [], "\n".join(program))
@@ -311,7 +322,14 @@ class RuleEngine:
 
     def _solve(self) -> list[RuleHit]:
         shown: list[clingo.Symbol] = []
-        result = self._ctl.solve(on_model=lambda m: shown.extend(m.symbols(shown=True)))
+
+        def on_model(m: clingo.Model) -> None:
+            shown.extend(m.symbols(shown=True))
+
+        if self.users:
+            result = solve_within(self._ctl, on_model, self.budget.solve_seconds, self.users)
+        else:  # the shipped rules: tested, under 1 ms
+            result = self._ctl.solve(on_model=on_model)
         if not result.satisfiable:
             raise VlaprobeError("the rules have no answer for this step; make every rule derive violation/2")
         found: dict[tuple[str, str], list[str]] = {}

@@ -136,6 +136,8 @@ def check_train(cfg: TrainConfig, prefix: str = "") -> None:
         raise VlaprobeError(f"{f('probe.tol')} must be a positive finite number, got {p.tol}")
     at_least(p.max_iter, 1, f("probe.max_iter"))
     at_least(p.history, 1, f("probe.history"))
+    if not (math.isfinite(p.memory_mb) and p.memory_mb > 0):
+        raise VlaprobeError(f"{f('probe.memory_mb')} must be a positive finite number, got {p.memory_mb}")
     _between(p.threshold, 0, 1, f("probe.threshold"))
     check_device(p.device, f("probe.device"))
     at_least(cfg.bootstrap, 0, f("bootstrap"))
@@ -252,6 +254,11 @@ def check_run(cfg: RunConfig) -> None:
     check_report(cfg.report, "report.")
     if cfg.control_model:
         check_policy(dataclasses.replace(cfg.collect.policy, model=cfg.control_model), "control-")
+        if cfg.control_model == cfg.collect.policy.model:
+            raise VlaprobeError(
+                f"--control-model {cfg.control_model} is the observed model itself: the control would compare "
+                'the probes with themselves; name another model, or pass --control-model "" to skip it'
+            )
         if cfg.collect.policy.pooling == "action_tokens":
             raise VlaprobeError(
                 '--control-model needs a prompt-pass pooling (not "action_tokens"); pass --control-model "" to skip it'

@@ -2,11 +2,26 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 DEFAULT_DEBOUNCE = 3
 """Steps a belief change must hold before it counts; chosen from measurements in docs/cognition.md."""
+
+
+@dataclass(frozen=True)
+class RuleBudget:
+    """Bounds on users' rules files (the shipped rules are not bounded): a rule that grounds without end
+    (``n(X+1) :- n(X).``) or a search that never finishes stops with one line naming the rule."""
+
+    ground_seconds: float = 10.0
+    """Most seconds grounding may take (it runs first in a child process, killed at this limit)."""
+    ground_atoms: int = 1_000_000
+    """Most ground atoms the program may have (the shipped rules over 236 atoms: about 2,000)."""
+    ground_memory_mb: int = 2048
+    """Most memory (address space, MB) the grounding's child process may use."""
+    solve_seconds: float = 2.0
+    """Most seconds one step's solve may take (the shipped rules: under 1 ms)."""
 
 
 @dataclass(frozen=True)
@@ -28,6 +43,8 @@ class CognitionConfig:
     regression_steps: int = 8
     """A subgoal counts as undone once the beliefs have stopped supporting it for this many consecutive steps
     (the scripted expert lets go 2-3 steps before the object rests on its place)."""
+    budget: RuleBudget = field(default_factory=RuleBudget)
+    """Time, size and memory bounds on grounding and solving users' rules files."""
 
 
 @dataclass
@@ -57,6 +74,8 @@ class MonitorConfig:
     """Steps without a new subgoal done before a "stalled" event."""
     regression_steps: int = 8
     """Consecutive steps the beliefs must stop supporting a done subgoal before it counts as undone."""
+    budget: RuleBudget = field(default_factory=RuleBudget)
+    """Time, size and memory bounds on grounding and solving the --rules files."""
 
     def cognition(self) -> CognitionConfig:
         """The cognition settings these options describe."""
@@ -66,4 +85,5 @@ class MonitorConfig:
             recent_steps=self.recent_steps,
             stall_steps=self.stall_steps,
             regression_steps=self.regression_steps,
+            budget=self.budget,
         )

@@ -21,6 +21,7 @@ from fastapi.staticfiles import StaticFiles
 from starlette.websockets import WebSocketDisconnect
 
 from vlaprobe import __version__
+from vlaprobe.cognition.budget import interrupt_solves
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.live import protocol as P
 from vlaprobe.live.commands import Commands, error_text
@@ -83,6 +84,7 @@ def create_app(engine: Engine, limits: Limits) -> FastAPI:
         hub.loop = asyncio.get_running_loop()
         yield
         reader.close()
+        interrupt_solves()  # a step solving users' rules ends now, not at its budget
         await asyncio.to_thread(session.close)
 
     app = FastAPI(

@@ -82,6 +82,19 @@ def cognition_factory(config: CognitionConfig | None = None) -> MakeCognition:
     return make
 
 
+def check_cognition(config: CognitionConfig, probes: ProbeSet) -> None:
+    """Build the cognition once over the probes' atoms so that a bad rules file (syntax, not UTF-8, grounding
+    or solving beyond its budget) is refused when the server starts, in one line, not at every ``start``."""
+    from vlaprobe.cognition import Cognition
+    from vlaprobe.symbols.vocabulary import parse_atom
+
+    atoms = {h: probes.atom_names(h) for h in HEADS}
+    pairs = [args for pred, args in map(parse_atom, atoms["object"]) if pred == "on" and len(args) == 2]
+    if pairs:  # the goal only adds one fact; each task's own is checked when its first episode starts
+        cog = Cognition(atoms["object"], atoms["action"], Goal(*pairs[0]), config)
+        cog.step(np.zeros(len(atoms["object"]), bool), np.zeros(len(atoms["action"]), bool))
+
+
 def _is_loopback(host: str) -> bool:
     if host == "localhost":
         return True
@@ -143,6 +156,7 @@ def build_engine(
     make_driver: MakeDriver | None = None,
 ) -> Engine:
     """Everything the app serves. Without ``policy``/``make_env``/``tasks`` the real model and LIBERO are used."""
+    check_cognition(cfg.cognition, probes)  # cached: main's check made the same program
     layers = {h: v for h, v in (("object", cfg.object_layer), ("action", cfg.action_layer)) if v is not None}
     readout = ProbeReading(probes, layers or None)
     make_cognition = cognition_factory(cfg.cognition)
@@ -263,15 +277,22 @@ def _listen(host: str, port: int) -> socket.socket:
     return sock
 
 
-def main(cfg: ServeConfig) -> int:
-    """Load everything, print the address, serve until interrupted."""
+def run_server(app: object, sock: socket.socket, max_message_bytes: int = 65536) -> None:
+    """Serve ``app`` on the bound ``sock`` until SIGINT or SIGTERM (the app's shutdown interrupts a solve)."""
     import uvicorn
 
+    config = uvicorn.Config(app, ws_max_size=max_message_bytes, log_level="warning")  # type: ignore[arg-type]
+    uvicorn.Server(config).run(sockets=[sock])
+
+
+def main(cfg: ServeConfig) -> int:
+    """Load everything, print the address, serve until interrupted."""
     check_serve(cfg)
     check_inits(cfg.env, ())
     token = resolve_token(cfg)
     limits = limits_of(cfg, token)
     probes = load_probes(cfg)
+    check_cognition(cfg.cognition, probes)  # a bad rules file: refused before the port and the model
     sock = _listen(cfg.host, cfg.port)  # before the model loads: a busy port fails at once
     try:
         # one server records into a folder: a second one on it is refused before its model loads (the lock
@@ -291,8 +312,7 @@ def main(cfg: ServeConfig) -> int:
             f"vlaprobe live monitor: http://{shown}:{port}/{query}  (WebSocket ws://{shown}:{port}/ws)",
             flush=True,
         )
-        config = uvicorn.Config(app, ws_max_size=cfg.max_message_bytes, log_level="warning")
-        uvicorn.Server(config).run(sockets=[sock])
+        run_server(app, sock, cfg.max_message_bytes)
     finally:
         sock.close()
         lock.release()

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from vlaprobe.configs.hypotheses import CompareSplitsConfig
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.probes.results import HeadResult, read_evaluation
+from vlaprobe.probes.results import Evaluation, HeadResult, read_evaluation
 
 
 @dataclass(frozen=True)
@@ -39,9 +39,47 @@ def _at_best(head: HeadResult, metric: str) -> dict[str, tuple[float | None, flo
     return {p: (level.value[i][k], level.low[i][k], level.high[i][k]) for k, p in enumerate(head.predicates)}
 
 
+LOTO = "leave-one-task-out"
+
+
+def _split_of(ev: Evaluation) -> str | None:
+    """The ``--split.by`` the evaluation's run was trained with (None: not recorded)."""
+    split = ev.config.get("split")
+    by = split.get("by") if isinstance(split, dict) else None
+    return by if isinstance(by, str) else None
+
+
+def check_pair(within: Path, across: Path, a: Evaluation, b: Evaluation) -> None:
+    """Refuse two evaluations that do not make a within-task / cross-task pair of one store: the same folder
+    twice, the two folders swapped or of one split, another model or other data."""
+    if within.resolve() == across.resolve():
+        raise VlaprobeError(
+            f"--within and --across are the same folder ({within}); pass the within-task probes and the "
+            f"probes trained with --split.by {LOTO} on the same store"
+        )
+    kinds = _split_of(a), _split_of(b)
+    if None not in kinds and not (kinds[0] != LOTO and kinds[1] == LOTO):
+        if kinds[0] == LOTO and kinds[1] != LOTO:
+            raise VlaprobeError(
+                f"--within {within} was trained with --split.by {LOTO} and --across {across} within tasks: "
+                "the folders are swapped; pass them the other way round"
+            )
+        raise VlaprobeError(
+            f"--within {within} and --across {across} were both trained with --split.by {kinds[0]}; pass one "
+            f"within-task folder and one trained with --split.by {LOTO}"
+        )
+    if a.model_id != b.model_id or a.pooling != b.pooling or a.dataset != b.dataset:
+        raise VlaprobeError(
+            f"--within {within} and --across {across} were trained on different data (model {a.model_id!r} vs "
+            f"{b.model_id!r}, {a.dataset.episodes} vs {b.dataset.episodes} episodes, {a.dataset.steps} vs "
+            f"{b.dataset.steps} steps); train both on the same store"
+        )
+
+
 def split_comparison(within: Path, across: Path, metric: str = "balanced_accuracy") -> list[PredicateRow]:
     """Rows for every (head, predicate) probed under either split, heads and predicates in figure order."""
     a, b = read_evaluation(Path(within)), read_evaluation(Path(across))
+    check_pair(Path(within), Path(across), a, b)
     rows = []
     for head in a.heads:
         ha, hb = a.heads.get(head), b.heads.get(head)

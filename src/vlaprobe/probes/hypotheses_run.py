@@ -86,6 +86,7 @@ def run_curves(
             f"{store} lacks test episodes of {probes}; pass the store it was trained on (--store)"
         )
     rows = np.flatnonzero(np.isin(data.episode, test))
+    check_same_store(probes, ps.model_id, ev.split.test.steps, store, data.model_id, len(rows))
     position = {e: i for i, e in enumerate(test)}
     episode = np.array([position[e] for e in data.episode[rows]])
     cut = math.log(ps.threshold / (1 - ps.threshold))
@@ -107,10 +108,31 @@ def run_curves(
     return curves_from_counts(counts, ps.layers, bootstrap_weights(len(test), resamples, seed))
 
 
+def check_same_store(
+    probes: Path, model_id: str, test_steps: int, store: Path, store_model: str, store_test_steps: int
+) -> None:
+    """Refuse a store the probes were not trained on: another model's hidden states, or test episodes of the
+    same names whose steps differ from those the evaluation scored (another collection)."""
+    if store_model != model_id:
+        raise VlaprobeError(
+            f"store {store} was observed by model {store_model!r}, the probes of {probes} by {model_id!r}: their "
+            "verdicts would score the probes on another model's hidden states; pass the store they were trained "
+            "on (--store)"
+        )
+    if store_test_steps != test_steps:
+        raise VlaprobeError(
+            f"the test episodes of {probes} hold {test_steps} steps in its evaluation but {store_test_steps} in "
+            f"store {store}: another collection under the same episode names; pass the store the probes were "
+            "trained on (--store)"
+        )
+
+
 def hypotheses(cfg: HypothesesConfig) -> Hypotheses:
     """Compute and save ``hypotheses.json`` in the probe folder."""
     if cfg.bootstrap is not None and cfg.bootstrap < 10:
         raise VlaprobeError(f"--bootstrap must be at least 10, got {cfg.bootstrap}")
+    if cfg.seed is not None and cfg.seed < 0:
+        raise VlaprobeError(f"--seed must be at least 0, got {cfg.seed}")
     result = answer_hypotheses(run_curves(Path(cfg.probes), cfg.store, cfg.bootstrap, cfg.seed))
     write_hypotheses(cfg.probes, result)
     return result

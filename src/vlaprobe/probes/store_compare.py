@@ -196,6 +196,15 @@ def compare_stores(cfg: CompareStoresConfig) -> StoreComparison:
         )
     if cfg.bootstrap < 10:
         raise VlaprobeError(f"--bootstrap must be at least 10, got {cfg.bootstrap}")
+    if cfg.seed < 0:
+        raise VlaprobeError(f"--seed must be at least 0, got {cfg.seed}")
+    if not 0 < cfg.test_fraction < 1:
+        raise VlaprobeError(f"--test-fraction must be between 0 and 1 (exclusive), got {cfg.test_fraction}")
+    twice = [str(s) for i, s in enumerate(stores) if s.resolve() in {t.resolve() for t in stores[:i]}]
+    if twice:
+        raise VlaprobeError(
+            f"store {twice[0]} is given twice: it would be compared with itself; pass each store once"
+        )
     for s in stores:
         if not (s / "zarr.json").is_file():
             raise VlaprobeError(

@@ -58,9 +58,16 @@ def train_probes(cfg: TrainConfig) -> Path:
     check_train(cfg)
     out = cfg.out if cfg.out is not None else Path(cfg.store).parent / "probes"
     check_probe_folder(out)
-    for store in (cfg.store, cfg.observer_store):
-        if store is not None:
-            read_meta(Path(store))  # a mistyped store fails before the lock file is created beside --out
+    metas = [read_meta(Path(s)) for s in (cfg.store, cfg.observer_store) if s is not None]
+    # (a mistyped store fails before the lock file is created beside --out)
+    if cfg.observer_store is not None:
+        same_folder = Path(cfg.observer_store).resolve() == Path(cfg.store).resolve()
+        if same_folder or metas[0]["model_id"] == metas[1]["model_id"]:
+            raise VlaprobeError(
+                f"--observer-store {cfg.observer_store} holds the hidden states of the same model "
+                f"({metas[0]['model_id']!r}) as --store {cfg.store}: the control would compare the probes with "
+                "themselves; pass the store a second observer saw (e.g. control/activations of vlaprobe run)"
+            )
     with locked(out):
         data = load_store(cfg.store, heads=cfg.heads, layers=cfg.layers, success_only=cfg.split.success_only)
         observer = None
