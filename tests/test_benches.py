@@ -22,6 +22,7 @@ LIBERO = {
 KEYS = {
     "capture_overhead": "ratio", "cognition_step": "ms_per_step", "collect_throughput": "steps_per_s",
     "diverse_data": "wall_s", "expert_success": "success_rate", "finetune": "samples_per_s",
+    "gpu": "parameters",
     "init_variation": "varying", "label_speed": "label_ms_per_state", "live": "rate_ratio",
     "placement_checks": "libero_fixed_inits", "probe_training": "speedup", "tiny_forward": "ms_per_step",
     "web_ui": "steps",
