@@ -29,6 +29,7 @@ import torch
 
 from vlaprobe.configs.train import TrainConfig
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.probes.apply import apply_probes_to_rows
 from vlaprobe.probes.data import load_store
 from vlaprobe.probes.evaluate import column_groups
 from vlaprobe.probes.lbfgs import fit_logistic, l2_of_c
@@ -51,7 +52,6 @@ def test_scores(
     device = torch.device("cpu")
     x, mean, std = training_matrix(hidden, train, device, True)
     assert mean is not None and std is not None
-    x_test = (hidden[:, test].float() - mean[:, None]) / std[:, None]
     targets = torch.as_tensor(y[train], dtype=torch.float32)
     threshold_logit = math.log(cfg.probe.threshold / (1 - cfg.probe.threshold))
     out, start = [], None
@@ -60,7 +60,7 @@ def test_scores(
         p = cfg.probe
         w, b, _ = fit_logistic(x, targets, l2, tol=p.tol, max_iter=p.max_iter, history=p.history, init=start)
         start = (w, b)
-        z = torch.baddbmm(b[:, None], x_test, w)
+        z = apply_probes_to_rows(hidden, w, b, mean, std, test)
         counts = confusion_by_group(z > threshold_logit, y[test], np.zeros(len(test)), 1)[0]
         out.append(metrics_from_counts(counts)["balanced_accuracy"])
     return np.stack(out)
