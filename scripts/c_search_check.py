@@ -1,6 +1,6 @@
 """How much test balanced accuracy the C search gives away: the table of docs/probing.md ("Choosing C").
 
-    .venv/bin/python scripts/c_search_check.py runs/s20/activations runs/default/activations ...
+    .venv/bin/python scripts/c_search_check.py runs/s20/activations runs/default/activations ... [--layers 0 4 8]
 
 Per store: the split and label filter of ``vlaprobe train`` with its defaults (seed 0); the C search of the
 default probes (both heads together, as ``vlaprobe train``); then the probes fit on the whole training split
@@ -29,6 +29,7 @@ import torch
 
 from vlaprobe.configs.train import TrainConfig
 from vlaprobe.errors import VlaprobeError
+from vlaprobe.probes.apply import apply_probes_to_rows
 from vlaprobe.probes.data import load_store
 from vlaprobe.probes.evaluate import column_groups
 from vlaprobe.probes.lbfgs import fit_logistic, l2_of_c
@@ -51,7 +52,6 @@ def test_scores(
     device = torch.device("cpu")
     x, mean, std = training_matrix(hidden, train, device, True)
     assert mean is not None and std is not None
-    x_test = (hidden[:, test].float() - mean[:, None]) / std[:, None]
     targets = torch.as_tensor(y[train], dtype=torch.float32)
     threshold_logit = math.log(cfg.probe.threshold / (1 - cfg.probe.threshold))
     out, start = [], None
@@ -60,7 +60,7 @@ def test_scores(
         p = cfg.probe
         w, b, _ = fit_logistic(x, targets, l2, tol=p.tol, max_iter=p.max_iter, history=p.history, init=start)
         start = (w, b)
-        z = torch.baddbmm(b[:, None], x_test, w)
+        z = apply_probes_to_rows(hidden, w, b, mean, std, test)
         counts = confusion_by_group(z > threshold_logit, y[test], np.zeros(len(test)), 1)[0]
         out.append(metrics_from_counts(counts)["balanced_accuracy"])
     return np.stack(out)
@@ -76,9 +76,9 @@ def _row(values: np.ndarray) -> dict[str, float]:
     return {"best": round(float(np.nanmax(values)), 4), "mean": round(float(np.nanmean(values)), 4)}
 
 
-def check(store: str) -> dict[str, dict]:
-    """Per head: the figures of each rule (see the module docstring)."""
-    cfg = TrainConfig(store=store)
+def check(store: str, layers: tuple[int, ...] = ()) -> dict[str, dict]:
+    """Per head: the figures of each rule (see the module docstring), on ``layers`` (default: all)."""
+    cfg = TrainConfig(store=store, layers=layers)
     data = load_store(store, heads=cfg.heads, layers=cfg.layers)
     (fold,) = make_folds(data.episode_tasks, cfg.split, cfg.seed)
     train, test = rows_of(data.episode, fold.train), rows_of(data.episode, fold.test)
@@ -161,12 +161,15 @@ def table(results: dict[str, dict]) -> str:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("stores", nargs="+", help="activation stores (vlaprobe collect --out)")
+    parser.add_argument(
+        "--layers", type=int, nargs="+", default=[], help="hidden states to check (default: all)"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     results = {}
     try:
         for store in args.stores:
-            results[store] = check(store)
+            results[store] = check(store, tuple(args.layers))
             print(json.dumps({store: results[store]}), file=sys.stderr, flush=True)
     except VlaprobeError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -178,5 +178,5 @@ def test_train_warns_and_records_when_one_episode_per_task_leaves_nothing_to_hol
     fit = read_evaluation(out).heads["object"].fit
     assert fit is not None and set(fit.c) == {1.0} and fit.c_at_edge is None and fit.cv_folds == 0
     message = fit.edge_warning("object")
-    assert message is not None and "--probe.c-without-cv" in message and "2 episodes per task" in message
+    assert message is not None and "--probe.c-without-cv" in message and "3 episodes per task" in message
     assert message in caplog.text

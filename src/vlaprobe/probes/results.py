@@ -176,7 +176,10 @@ class ProbeFit:
         """One line when the chosen C sits at an end of the grid at some layer, or when a grid was given and
         could not be searched, else None."""
         if self.c_at_edge is None and len(self.c_grid) > 1 and self.c_rule.startswith("C = "):
-            return f"{head}: {self.c_rule}; collect at least 2 episodes per task to choose C"
+            return (
+                f"{head}: {self.c_rule}; C is searched where a task has at least 2 training episodes "
+                "(3 episodes per task with the default --split.test-fraction)"
+            )
         if not self.c_at_edge or not any(self.c_at_edge):
             return None
         edge = [i for i, e in enumerate(self.c_at_edge) if e]
