@@ -29,7 +29,7 @@ def run_task(job: tuple[int, list[int], int]) -> list[dict]:
 
     from vlaprobe.configs.env import EnvConfig
     from vlaprobe.envs.libero import LiberoTaskEnv
-    from vlaprobe.envs.libero_expert import ScriptedExpert
+    from vlaprobe.experts import ScriptedExpert
 
     records = []
     with LiberoTaskEnv(task, EnvConfig(render=False)) as env:
