@@ -14,6 +14,7 @@ ORDER = (
     "symbols",
     "configs",
     "envs",
+    "experts",
     "policies",
     "rollout",
     "collection",

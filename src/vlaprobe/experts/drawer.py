@@ -51,17 +51,13 @@ class Drawer(ArmSkill):
         self._k = scene.openable.index(region)
         self._opening = opening
         self._rule = scene.container_articulation[self._k] if opening else scene.close_articulation[self._k]
-        joint = model.joint(e.object_sites_dict[region].joints[0])
-        self._body = int(joint.bodyid[0])
-        axis = self._data.xmat[self._body].reshape(3, 3) @ np.asarray(joint.axis)
-        open_rule = scene.container_articulation[self._k]
-        self._out = -axis if open_rule.below else axis  # the drawer front moves along this when opening
-        geoms = [
+        self._joint = model.joint(e.object_sites_dict[region].joints[0])
+        self._body = int(self._joint.bodyid[0])
+        self._geoms = [
             g
             for g in range(model.ngeom)
             if model.geom_bodyid[g] == self._body and (model.geom_contype[g] or model.geom_conaffinity[g])
         ]
-        self._handle = max(geoms, key=lambda g: float(self._geom_box(g)[0] @ self._out))
         self.reset()
 
     def _geom_box(self, g: int) -> tuple[np.ndarray, np.ndarray]:
@@ -71,7 +67,12 @@ class Drawer(ArmSkill):
         return centre, np.abs(rot) @ self._model.geom_aabb[g, 3:]
 
     def reset(self) -> None:
+        """Read the drawer's pose now (a reset places the fixtures) and start from the current state."""
         super().reset()
+        axis = self._data.xmat[self._body].reshape(3, 3) @ np.asarray(self._joint.axis)
+        open_rule = self.env.scene.container_articulation[self._k]
+        self._out = -axis if open_rule.below else axis  # the drawer front moves along this when opening
+        self._handle = max(self._geoms, key=lambda g: float(self._geom_box(g)[0] @ self._out))
         up = np.array([0.0, 0.0, 1.0])
         _, rot = self._eef()
         frames = [facing_frame(-self._out, s * up) for s in (1.0, -1.0)]

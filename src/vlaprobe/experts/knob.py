@@ -42,12 +42,9 @@ class Knob(ArmSkill):
         k = scene.on_off.index(fixture)
         self._k = k
         self._rule = scene.on_off_articulation[k] if on else scene.off_articulation[k]
-        joint = model.joint(env.sim_env.get_object(fixture).joints[0])
-        self._knob_body = int(joint.bodyid[0])
-        axis = self._data.xmat[self._knob_body].reshape(3, 3) @ np.asarray(joint.axis)
-        # Raising the joint turns the knob by +angle about ``axis``; the rule says which way to go.
+        self._joint = model.joint(env.sim_env.get_object(fixture).joints[0])
+        self._knob_body = int(self._joint.bodyid[0])
         self._raise = not self._rule.below
-        self._turn_sign = (1.0 if self._raise else -1.0) * float(np.sign(axis[2]) or 1.0)
         geoms = [
             g
             for g in range(model.ngeom)
@@ -63,7 +60,11 @@ class Knob(ArmSkill):
         return float(centre[2] + np.abs(rot)[2] @ self._model.geom_aabb[g, 3:])
 
     def reset(self) -> None:
+        """Read the knob's pose now (a reset places the fixtures) and start from the current state."""
         super().reset()
+        axis = self._data.xmat[self._knob_body].reshape(3, 3) @ np.asarray(self._joint.axis)
+        # Raising the joint turns the knob by +angle about ``axis``; the rule says which way to go.
+        self._turn_sign = (1.0 if self._raise else -1.0) * float(np.sign(axis[2]) or 1.0)
         self._enter("approach")
 
     def _holds(self, state: WorldState) -> bool:
