@@ -26,9 +26,9 @@ from vlaprobe.configs.env import SUITES
 MAX_STEPS = 300  # episode budget after settling (LiberoTaskEnv's default max_steps)
 
 
-def run_task(job: tuple[str, int, list[int], int]) -> list[dict]:
+def run_task(job: tuple[str, int, list[int], int, int]) -> list[dict]:
     """Run the expert on one task's init states; one record per episode."""
-    suite, task, inits, seed = job
+    suite, task, inits, seed, max_steps = job
     import numpy as np
 
     from vlaprobe.configs.env import EnvConfig
@@ -46,7 +46,7 @@ def run_task(job: tuple[str, int, list[int], int]) -> list[dict]:
             obs = env.reset(init)
             expert.reset()
             steps = 0
-            while steps < MAX_STEPS and not obs.success:
+            while steps < max_steps and not obs.success:
                 obs = env.step(expert.act())
                 steps += 1
             records.append(
@@ -70,6 +70,7 @@ def main() -> None:
     parser.add_argument("--tasks", type=str, default="0-9", help="task indices, e.g. 0-9 or 2,4")
     parser.add_argument("--procs", type=int, default=2, help="worker processes (one env each)")
     parser.add_argument("--seed", type=int, default=0, help="expert seed")
+    parser.add_argument("--max-steps", type=int, default=MAX_STEPS, help="episode budget (libero_10: 520)")
     args = parser.parse_args()
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -83,7 +84,7 @@ def main() -> None:
     else:
         tasks = [int(x) for x in args.tasks.split(",")]
     inits = list(range(50 if args.all else args.inits))
-    jobs = [(args.suite, task, inits, args.seed) for task in tasks]
+    jobs = [(args.suite, task, inits, args.seed, args.max_steps) for task in tasks]
 
     wall = time.perf_counter()
     records: list[dict] = []
@@ -110,6 +111,7 @@ def main() -> None:
         "wall_s": round(time.perf_counter() - wall, 1),
         "failures": [[r["task"], r["init"], r["phase"]] for r in records if not r["success"]],
         "suite": args.suite,
+        "max_steps": args.max_steps,
         "target": 0.95 if args.suite == "libero_spatial" else 0.9,
     }
     print(json.dumps(result))

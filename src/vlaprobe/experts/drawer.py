@@ -6,8 +6,9 @@ the fingers opening vertically (a gripper pointing down meets the handles of the
 
 - open: ``approach`` a point ``DRAWER_PRE`` in front of the handle (first at the current height, then down to the
   handle's), ``insert`` until the grip point is at the handle's centre, ``close`` the fingers on it, ``pull``
-  along the opening direction until the joint is ``DRAWER_MARGIN`` past LIBERO's open threshold, ``release``
-  and ``retreat`` straight back;
+  along the opening direction until the joint is ``DRAWER_MARGIN`` past LIBERO's open threshold, ``release``,
+  ``retreat`` straight back, then go back to where the skill started (``home``) while turning to point down
+  again: the arm's joints return near their usual configuration, from which the next skill starts;
 - close: the same approach with closed fingers, then ``push`` the handle in until LIBERO's close rule holds.
 
 A pull that stalls (the fingers slipped off) lets go and approaches again.
@@ -29,6 +30,7 @@ from vlaprobe.experts.geometry import (
     PHASE_STEPS,
     POS_TOL,
     YAW_TOL,
+    _down_rotation,
     _rotvec,
 )
 from vlaprobe.symbols.world import WorldState
@@ -74,7 +76,7 @@ class Drawer(ArmSkill):
         self._out = -axis if open_rule.below else axis  # the drawer front moves along this when opening
         self._handle = max(self._geoms, key=lambda g: float(self._geom_box(g)[0] @ self._out))
         up = np.array([0.0, 0.0, 1.0])
-        _, rot = self._eef()
+        self._home, rot = self._eef()
         frames = [facing_frame(-self._out, s * up) for s in (1.0, -1.0)]
         self._frame = min(frames, key=lambda f: float(np.linalg.norm(_rotvec(f @ rot.T))))
         self._enter("approach")
@@ -146,10 +148,25 @@ class Drawer(ArmSkill):
             error = float(np.linalg.norm(self._anchor - pos))
             if error > POS_TOL and not self._stuck(error):
                 return self._action(self._anchor, grip)
+            self._anchor = self._home.copy()
+            self._frame = self._nearest_down(rot)  # the next skill starts pointing down
+            self._enter("home")
+        if self.phase == "home":
+            error = float(np.linalg.norm(self._anchor - pos))
+            turned = np.linalg.norm(_rotvec(self._frame @ rot.T)) < YAW_TOL
+            if not (error < POS_TOL and turned) and self._phase_steps < PHASE_STEPS:
+                return self._action(self._anchor, grip)
             self._enter("done")
         action = np.zeros(7)
         action[6] = OPEN
         return action
+
+    def _nearest_down(self, rot: np.ndarray) -> np.ndarray:
+        """The pointing-down frame nearest to ``rot`` (fingers along or across the drawer's slide): tilting
+        back about the horizontal, not turning the wrist about the vertical as well."""
+        side = np.cross(self._out, np.array([0.0, 0.0, 1.0]))
+        frames = [_down_rotation(s * a) for a in (self._out, side) for s in (1.0, -1.0)]
+        return min(frames, key=lambda f: float(np.linalg.norm(_rotvec(f @ rot.T))))
 
     def _gripper_command(self) -> float:
         """Open fingers to take the handle; closed ones to push it."""
