@@ -19,6 +19,8 @@ SCENE = Scene(
     on_off=("flat_stove_1",),
     on_off_articulation=(Articulation(0.5, below=False),),
     receptacles=("basket_1_contain_region",),
+    doors=("microwave_1",),
+    door_articulation=(Articulation(-0.5, below=True),),
 )
 
 
@@ -65,7 +67,12 @@ def test_two_objects_into_one_basket_and_a_repeated_open_are_planned_once_each()
 
 @pytest.mark.parametrize(
     "conjunct",
-    [("TurnOn", "wooden_cabinet_1"), ("Open", "flat_stove_1"), ("On", "wooden_cabinet_1", "plate_1")],
+    [
+        ("TurnOn", "wooden_cabinet_1"),
+        ("Open", "flat_stove_1"),
+        ("On", "wooden_cabinet_1", "plate_1"),
+        ("Close", "microwave_1"),  # a door: no skill yet
+    ],
 )
 def test_a_conjunct_without_a_skill_is_refused_naming_it(conjunct: tuple[str, ...]) -> None:
     with pytest.raises(VlaprobeError, match=rf"no skill for the goal conjunct {conjunct[0]}\("):

@@ -20,6 +20,7 @@ from vlaprobe.experts.geometry import (
     INTEGRAL_MAX,
     INTEGRATE_WITHIN,
     POS_SCALE,
+    POS_TOL,
     ROT_SCALE,
     STALL_STEPS,
     _down_rotation,
@@ -129,6 +130,32 @@ class ArmSkill:
         else:
             self._stalled += 1
         return self._stalled >= STALL_STEPS
+
+    def _fingers_then(self, pos: np.ndarray, command: float, steps: int, then: str) -> np.ndarray | None:
+        """Hold still where the phase began while the fingers follow ``command`` for ``steps`` steps, then
+        enter ``then``: the action, or None once entered."""
+        if self._phase_steps == 0:
+            self._anchor = pos
+        if self._phase_steps < steps:
+            return self._action(self._anchor, command)
+        self._enter(then)
+        return None
+
+    def _retreat(self, pos: np.ndarray, command: float) -> np.ndarray | None:
+        """Move to the anchor (set on entering the retreat) until there or blocked, then enter ``done``: the
+        action, or None once done."""
+        error = float(np.linalg.norm(self._anchor - pos))
+        if error > POS_TOL and not self._stuck(error):
+            return self._action(self._anchor, command)
+        self._enter("done")
+        return None
+
+    @staticmethod
+    def _hold(command: float) -> np.ndarray:
+        """Stay still, the fingers following ``command``."""
+        action = np.zeros(7)
+        action[6] = command
+        return action
 
     def act(self) -> np.ndarray:
         """The (7,) action for the current simulator state."""

@@ -122,12 +122,11 @@ class Drawer(ArmSkill):
                 self._enter("release")
             else:
                 return self._action(target, grip, speed=0.5)
-        if self.phase == "close":
-            if self._phase_steps == 0:
-                self._anchor = pos
-            if self._phase_steps < CLOSE_STEPS:
-                return self._action(self._anchor, CLOSE)
-            self._enter("pull")
+        if (
+            self.phase == "close"
+            and (action := self._fingers_then(pos, CLOSE, CLOSE_STEPS, "pull")) is not None
+        ):
+            return action
         if self.phase == "pull":
             if self._stuck(-float(pos @ self._out)) or self._phase_steps > PHASE_STEPS:
                 self._enter("regrasp")
@@ -157,9 +156,7 @@ class Drawer(ArmSkill):
             if not (error < POS_TOL and turned) and self._phase_steps < PHASE_STEPS:
                 return self._action(self._anchor, grip)
             self._enter("done")
-        action = np.zeros(7)
-        action[6] = OPEN
-        return action
+        return self._hold(OPEN)
 
     def _nearest_down(self, rot: np.ndarray) -> np.ndarray:
         """The pointing-down frame nearest to ``rot`` (fingers along or across the drawer's slide): tilting

@@ -102,7 +102,9 @@ KNOB_MARGIN = 0.15  # turn this far past LIBERO's on/off threshold (radians)
 # Pushing (a plate along the table).
 PUSH_BEHIND = 0.03  # fingers start this far behind the object's far edge
 PUSH_INSET = 0.025  # ... or this far inside it when something stands behind
-PUSH_CLEARANCE = 0.04  # behind is free when nothing within this distance stands this high over the object's bottom
+PUSH_CLEARANCE = (
+    0.04  # behind is free when nothing within this distance stands this high over the object's bottom
+)
 PUSH_HEIGHT = 0.012  # grip point above the object's bottom while pushing
 PUSH_INSIDE = 0.5  # done once the object's origin is within this share of the region's half sizes
 PUSH_STEP = 0.02  # the fingers aim this far ahead along the way to the region (metres)

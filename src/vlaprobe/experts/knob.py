@@ -114,12 +114,11 @@ class Knob(ArmSkill):
                 self._enter("close")
             else:
                 return self._action(grip, OPEN)
-        if self.phase == "close":
-            if self._phase_steps == 0:
-                self._anchor = pos
-            if self._phase_steps < CLOSE_STEPS:
-                return self._action(self._anchor, CLOSE)
-            self._enter("turn")
+        if (
+            self.phase == "close"
+            and (action := self._fingers_then(pos, CLOSE, CLOSE_STEPS, "turn")) is not None
+        ):
+            return action
         if self.phase == "turn":
             if self._holds(state) and abs(state.on_off_qpos[self._k] - self._rule.threshold) >= KNOB_MARGIN:
                 self._enter("release")
@@ -138,11 +137,6 @@ class Knob(ArmSkill):
                 return self._action(pos + np.array([0.0, 0.0, 0.03]), OPEN)
             self._anchor = pos + np.array([0.0, 0.0, RETREAT_HEIGHT])
             self._enter("retreat")
-        if self.phase == "retreat":
-            error = float(np.linalg.norm(self._anchor - pos))
-            if error > POS_TOL and not self._stuck(error):
-                return self._action(self._anchor, OPEN)
-            self._enter("done")
-        action = np.zeros(7)
-        action[6] = OPEN
-        return action
+        if self.phase == "retreat" and (action := self._retreat(pos, OPEN)) is not None:
+            return action
+        return self._hold(OPEN)

@@ -1,7 +1,7 @@
 """The expert's planner: the BDDL goal conjunction -> an ordered list of skill steps, then the skills that run
 them one after another (:class:`ScriptedExpert`).
 
-Each conjunct becomes one step: ``Open``/``Close`` an openable region or door, ``TurnOn``/``TurnOff`` an on-off
+Each conjunct becomes one step: ``Open``/``Close`` a drawer (a door such as the microwave's has no skill), ``TurnOn``/``TurnOff`` an on-off
 fixture, ``In``/``On`` a movable object: a pick-and-place (by the rim for bowls and mugs, by the body for
 anything else), or a push when a plate goes onto a placement region of the table. Putting something ``In`` a
 drawer first opens it. Steps run in the order opening, switching, placing, closing (a drawer is closed after
@@ -49,7 +49,7 @@ def plan_steps(goal: GoalConjunction, scene: Scene) -> list[Step]:
     steps: list[Step] = []
     for conjunct in goal.conjuncts:
         pred, args = conjunct.predicate, conjunct.args
-        if pred in ("Open", "Close") and args[0] in scene.openable:
+        if pred in ("Open", "Close") and args[0] in scene.containers:  # drawers (doors: no skill yet)
             steps.append(Step("open" if pred == "Open" else "close", args[0]))
         elif pred in ("TurnOn", "TurnOff") and args[0] in scene.on_off:
             steps.append(Step("turn_on" if pred == "TurnOn" else "turn_off", args[0]))

@@ -20,13 +20,13 @@ from vlaprobe.experts.geometry import (
     CLOSE,
     PHASE_STEPS,
     POS_TOL,
-    PUSH_INSET,
-    PUSH_STEP,
-    PUSH_DRIFT,
     PUSH_BEHIND,
     PUSH_CLEARANCE,
+    PUSH_DRIFT,
     PUSH_HEIGHT,
+    PUSH_INSET,
     PUSH_INSIDE,
+    PUSH_STEP,
     RETREAT_HEIGHT,
 )
 from vlaprobe.experts.targets import Target
@@ -110,11 +110,6 @@ class Push(ArmSkill):
             aim[:2] += PUSH_STEP * way / max(float(np.linalg.norm(way)), 1e-9)
             aim[2] = self._anchor[2]
             return self._action(aim, CLOSE, speed=0.5)
-        if self.phase == "retreat":
-            error = float(np.linalg.norm(self._anchor - pos))
-            if error > POS_TOL and not self._stuck(error):
-                return self._action(self._anchor, CLOSE)
-            self._enter("done")
-        action = np.zeros(7)
-        action[6] = CLOSE
-        return action
+        if self.phase == "retreat" and (action := self._retreat(pos, CLOSE)) is not None:
+            return action
+        return self._hold(CLOSE)

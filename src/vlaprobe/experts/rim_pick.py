@@ -1,7 +1,8 @@
-"""A privileged scripted expert for LIBERO pick-and-place: reads poses from the simulator, outputs 7-D actions.
+"""Skill: pick a bowl (or a mug) by its rim and place it on or into a target; reads poses from the simulator.
 
-It solves ``On(pick, place)`` goals (every LIBERO-spatial task) with one phase machine whose every decision is
-derived from the goal and the live scene, never from the task index:
+It solves every LIBERO-spatial task (``On(bowl, plate)``) and the bowl goals of LIBERO-goal (onto the stove,
+the cabinet, the plate, into a drawer) with one phase machine whose every decision is derived from the goal
+and the live scene, never from the task index:
 
 1. ``approach``: choose the side of the object's rim and the grasp depth (1.5-2.5 cm below the rim) where the
    gripper's collision boxes, swept from the pre-grasp height down to the grasp, stay clear of every other
@@ -19,12 +20,7 @@ If the object slips out of the fingers (or is dropped), moves before it is grasp
 the target after the release (knocked off), the expert opens, rises (``regrasp``) and starts over from where
 the object now is.
 
-Actions follow robosuite's OSC_POSE controller as LIBERO configures it (``osc_pose.json``): each step sets the
-goal pose relative to the current end-effector pose; position offset = action[:3] x 5 cm, orientation offset =
-rotation vector action[3:6] x 0.5 rad applied in the world frame (goal = R(delta) @ current). Aiming at a
-target is ``(target - current) / scale``, clipped to [-1, 1], plus a damping term (the arm lags its goal and
-would overshoot) and an integral term (the controller leaves a steady offset of up to ~2 cm far from the base
-and under a held object's weight).
+The controller (actions, damping, integral term) is :class:`~vlaprobe.experts.base.ArmSkill`'s.
 """
 
 from __future__ import annotations
