@@ -36,7 +36,6 @@ from vlaprobe.rollout import (
 )
 from vlaprobe.rollout.perturb import KIND_CODE, Perturber, PerturbSpec
 from vlaprobe.rollout.runner import MakeDriver, default_threads
-from vlaprobe.symbols import Goal
 from vlaprobe.symbols.vocabulary import atom
 
 
@@ -182,7 +181,7 @@ class Worker:
         build_seconds = time.perf_counter() - start if build else 0.0
         spec = PerturbSpec.parse(self.cfg.perturb)
         control = EpisodeControl() if spec.any else None
-        perturber = Perturber(spec, seed, env.scene, _pick_place(env)) if spec.any else None
+        perturber = Perturber(spec, seed, env.scene, env.goal) if spec.any else None  # checked up front
         records = self.runner.run(
             env,
             self.cfg.driver,
@@ -255,17 +254,6 @@ class _Outcome:
     @property
     def success(self) -> bool:
         return self.tracker.step is not None
-
-
-def _pick_place(env: TaskEnv) -> Goal:
-    """The task's pick-and-place goal, which ``--perturb`` needs (what to drop, displace or knock off)."""
-    goal = getattr(env, "goal", None)
-    if goal is None:
-        raise VlaprobeError(
-            f"--perturb needs a pick-and-place goal (one On(a, b) between objects); task {env.task_index}'s goal "
-            f"is {getattr(env, 'goal_conjunction', '?')}: collect it without --perturb"
-        )
-    return goal
 
 
 def _episode_attrs(env: TaskEnv, perturber: Perturber | None, seconds: float) -> EpisodeAttrs:

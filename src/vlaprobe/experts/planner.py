@@ -15,6 +15,7 @@ from typing import Literal
 
 import numpy as np
 
+from vlaprobe.configs.env import EnvConfig
 from vlaprobe.envs.libero import LiberoTaskEnv
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.experts.base import ArmSkill
@@ -65,6 +66,26 @@ def plan_steps(goal: GoalConjunction, scene: Scene) -> list[Step]:
             raise VlaprobeError(f"the scripted expert has no skill for the goal conjunct {conjunct}")
     unique = list(dict.fromkeys(steps))
     return sorted(unique, key=lambda s: ORDER.index(s.skill))
+
+
+def check_tasks_plannable(env: EnvConfig, tasks: tuple[int, ...], expert: bool, perturb: bool) -> None:
+    """Before a collection: with the expert (``expert``) every task's goal must have skills, and ``--perturb``
+    (``perturb``) needs a pick-and-place goal (what to drop, displace or knock off); one line names the task."""
+    from vlaprobe.envs.bddl_scene import pick_place_goal, task_bddl, task_scene
+
+    for task in tasks:
+        problem = task_bddl(env.suite, task)
+        scene = task_scene(env.suite, task, env.assets)
+        try:
+            if expert:
+                plan_steps(problem.goal, scene)
+        except VlaprobeError as exc:
+            raise VlaprobeError(f"{env.suite} task {task}: {exc}; leave it out of --tasks") from None
+        if perturb and pick_place_goal(problem.goal, scene) is None:
+            raise VlaprobeError(
+                f"--perturb needs a pick-and-place goal (one On(a, b) between objects); {env.suite} task {task}'s "
+                f"goal is {problem.goal}: collect it without --perturb"
+            )
 
 
 def build_skill(env: LiberoTaskEnv, step: Step, seed: int) -> ArmSkill:
