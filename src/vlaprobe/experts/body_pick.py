@@ -20,6 +20,11 @@ X_AXIS, Y_AXIS = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
 class BodyPickPlace(RimPickPlace):
     """Pick ``pick`` by its body (module doc) and place it on ``place``."""
 
+    def _enter(self, phase: str) -> None:
+        super()._enter(phase)
+        if phase == "regrasp":  # a grasp pressed against the table winds the integral up: the approach stalls
+            self._integral = np.zeros(3)
+
     def _grasp_point(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         point = 0.5 * (lo + hi)
         point[2] = hi[2] - self._depth
