@@ -1,10 +1,12 @@
-"""Success rate of the scripted expert on LIBERO-spatial (target: >= 95% over 10 tasks x 50 init states).
+"""Success rate of the scripted expert on a LIBERO suite (spatial target: >= 95% over 10 tasks x 50 init states;
+object and goal: >= 90% over init states 0-9 of every task).
 
 Each episode: reset to a fixed init state (settled), then at most 300 expert steps, stopping at LIBERO's own
 success check. Runs without rendering, one env per task, tasks spread over worker processes. Prints one line
 per task on stderr and the figures as a final JSON line on stdout.
 
-    python bench/expert_success.py              # 10 tasks x 5 init states (~2 min on 2 cores)
+    python bench/expert_success.py              # LIBERO-spatial, 10 tasks x 5 init states (~2 min on 2 cores)
+    python bench/expert_success.py --suite libero_goal --inits 10   # another suite
     python bench/expert_success.py --inits 15   # first 15 init states of every task
     python bench/expert_success.py --all        # all 50 init states (~20 min on 2 cores)
 """
@@ -20,21 +22,22 @@ import time
 from pathlib import Path
 
 from quick import size
+from vlaprobe.configs.env import SUITES
 
 MAX_STEPS = size(300, 20)  # episode budget after settling (LiberoTaskEnv's default max_steps)
 
 
-def run_task(job: tuple[int, list[int], int]) -> list[dict]:
+def run_task(job: tuple[str, int, list[int], int, int]) -> list[dict]:
     """Run the expert on one task's init states; one record per episode."""
-    task, inits, seed = job
+    suite, task, inits, seed, max_steps = job
     import numpy as np
 
     from vlaprobe.configs.env import EnvConfig
     from vlaprobe.envs.libero import LiberoTaskEnv
-    from vlaprobe.envs.libero_expert import ScriptedExpert
+    from vlaprobe.experts import ScriptedExpert
 
     records = []
-    with LiberoTaskEnv(task, EnvConfig(render=False)) as env:
+    with LiberoTaskEnv(task, EnvConfig(suite=suite, render=False)) as env:  # type: ignore[arg-type]
         expert = ScriptedExpert(env, seed=seed)
         for init in inits:
             # LIBERO's soft reset samples object placements from numpy's global generator before the init state
@@ -44,7 +47,7 @@ def run_task(job: tuple[int, list[int], int]) -> list[dict]:
             obs = env.reset(init)
             expert.reset()
             steps = 0
-            while steps < MAX_STEPS and not obs.success:
+            while steps < max_steps and not obs.success:
                 obs = env.step(expert.act())
                 steps += 1
             records.append(
@@ -62,11 +65,13 @@ def run_task(job: tuple[int, list[int], int]) -> list[dict]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--suite", default="libero_spatial", choices=SUITES, help="LIBERO suite")
     parser.add_argument("--inits", type=int, default=size(5, 1), help="first N init states of every task")
     parser.add_argument("--all", action="store_true", help="all init states (50 per task)")
     parser.add_argument("--tasks", type=str, default=size("0-9", "0"), help="task indices, e.g. 0-9 or 2,4")
     parser.add_argument("--procs", type=int, default=size(2, 1), help="worker processes (one env each)")
     parser.add_argument("--seed", type=int, default=0, help="expert seed")
+    parser.add_argument("--max-steps", type=int, default=MAX_STEPS, help="episode budget (libero_10: 520)")
     args = parser.parse_args()
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -80,7 +85,7 @@ def main() -> None:
     else:
         tasks = [int(x) for x in args.tasks.split(",")]
     inits = list(range(50 if args.all else args.inits))
-    jobs = [(task, inits, args.seed) for task in tasks]
+    jobs = [(args.suite, task, inits, args.seed, args.max_steps) for task in tasks]
 
     wall = time.perf_counter()
     records: list[dict] = []
@@ -106,7 +111,9 @@ def main() -> None:
         "cpu_s_per_episode": round(sum(r["cpu_s"] for r in records) / len(records), 2),
         "wall_s": round(time.perf_counter() - wall, 1),
         "failures": [[r["task"], r["init"], r["phase"]] for r in records if not r["success"]],
-        "target": 0.95,
+        "suite": args.suite,
+        "max_steps": args.max_steps,
+        "target": 0.95 if args.suite == "libero_spatial" else 0.9,
     }
     print(json.dumps(result))
 

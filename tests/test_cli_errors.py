@@ -391,8 +391,16 @@ def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.Captu
             "--init 50 does not exist; the task has init states 0-49",
         ),
         (
-            ["collect", "--suite", "libero_goal", "--out", "OUT"],
-            "--suite libero_goal: `vlaprobe collect` runs on",
+            ["collect", "--suite", "libero_90", "--out", "OUT"],
+            "--suite libero_90: `vlaprobe collect` runs on",
+        ),
+        (  # the microwave's door has no skill
+            ["collect", "--suite", "libero_10", "--tasks", "9", "--out", "OUT"],
+            "libero_10 task 9: the scripted expert has no skill for the goal conjunct Close(microwave_1)",
+        ),
+        (
+            ["collect", "--suite", "libero_object", "--perturb", "drop=0.5", "--out", "OUT"],
+            "--perturb needs a pick-and-place goal (one On(a, b) between objects); libero_object task 0's",
         ),
         (
             ["run", "--suite", "libero_object", "--out", "OUT"],

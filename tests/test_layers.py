@@ -15,6 +15,7 @@ ORDER = (
     "symbols",
     "configs",
     "envs",
+    "experts",
     "policies",
     "rollout",
     "collection",

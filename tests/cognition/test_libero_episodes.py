@@ -37,7 +37,7 @@ class Episode:
 def episodes() -> list[Episode]:
     from vlaprobe.configs.env import EnvConfig
     from vlaprobe.envs.libero import LiberoTaskEnv
-    from vlaprobe.envs.libero_expert import ScriptedExpert
+    from vlaprobe.experts import ScriptedExpert
 
     out = []
     for task in range(10):

@@ -12,7 +12,7 @@ import pytest
 
 from vlaprobe.configs.env import EnvConfig
 from vlaprobe.envs.libero import LiberoTaskEnv
-from vlaprobe.envs.libero_expert import ScriptedExpert
+from vlaprobe.experts import ScriptedExpert
 from vlaprobe.symbols import Labeler, WorldState
 from vlaprobe.symbols.detectors import FINGER_SPEED, GOAL_HOLD_STEPS, SLIP_GAP
 

@@ -154,7 +154,7 @@ def _libero_truths(env: LiberoTaskEnv) -> dict[str, bool]:
 @pytest.mark.parametrize("task", [4, 9, 7])
 def test_detectors_agree_with_libero_along_a_rollout(task: int) -> None:
     """on / inside / open / turned-on equal LIBERO's own predicates on every step of an expert rollout."""
-    from vlaprobe.envs.libero_expert import ScriptedExpert
+    from vlaprobe.experts import ScriptedExpert
 
     with LiberoTaskEnv(task, EnvConfig(render=False)) as env:
         env.reset(1)

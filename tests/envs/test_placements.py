@@ -154,8 +154,8 @@ def test_place_object_moves_a_movable_object_onto_the_table() -> None:
 def test_swapped_regions_keep_the_instruction_and_the_expert_solves_them() -> None:
     from vlaprobe.configs.env import EnvConfig
     from vlaprobe.envs.libero import LiberoTaskEnv
-    from vlaprobe.envs.libero_expert import ScriptedExpert
     from vlaprobe.envs.referents import parse_reference, reference_problems
+    from vlaprobe.experts import ScriptedExpert
 
     # Task 1, "... the black bowl next to the ramekin ...": sample 0 (seed 0) starts the bowl in the ramekin's
     # region, the ramekin in the region next to it and the plate next to the box (a layout LIBERO never makes).

@@ -74,10 +74,16 @@ def check_collect_suite(cfg: CollectConfig, prefix: str = "") -> None:
     from vlaprobe.envs.checks import check_inits, check_tasks
     from vlaprobe.rollout.perturb import PerturbSpec
 
-    check_tasks(cfg.tasks, cfg.env.suite, f"--{prefix}tasks")
+    known = check_tasks(cfg.tasks, cfg.env.suite, f"--{prefix}tasks")
     check_inits(cfg.env, cfg.tasks)
     PerturbSpec.parse(cfg.perturb, f"--{prefix}perturb")
     FaultSpec.parse(cfg.expert_faults, f"--{prefix}expert-faults")
+    if cfg.env.suite != "libero_spatial":  # every LIBERO-spatial goal is the rim pick's
+        from vlaprobe.experts.planner import check_tasks_plannable
+
+        check_tasks_plannable(
+            cfg.env, cfg.tasks or tuple(known), expert=cfg.driver != "policy", perturb=bool(cfg.perturb)
+        )
 
 
 def _validate(cfg: CollectConfig) -> None:

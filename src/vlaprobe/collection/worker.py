@@ -182,7 +182,7 @@ class Worker:
         build_seconds = time.perf_counter() - start if build else 0.0
         spec = PerturbSpec.parse(self.cfg.perturb)
         control = EpisodeControl() if spec.any else None
-        perturber = Perturber(spec, seed, env.scene, env.goal) if spec.any else None
+        perturber = Perturber(spec, seed, env.scene, env.goal) if spec.any else None  # checked up front
         records = self.runner.run(
             env,
             self.cfg.driver,
@@ -231,7 +231,9 @@ class _Outcome:
 
     def __init__(self, env: TaskEnv, perturber: Perturber | None, control: EpisodeControl | None) -> None:
         self.perturber, self.control = perturber, control
-        self.grasp_col = env.labeler.vocabulary.action_atoms.index(atom("grasped", env.goal.pick))
+        goal = getattr(env, "goal", None)  # a pick-and-place goal; perturbations need one (_pick_place)
+        actions = env.labeler.vocabulary.action_atoms
+        self.grasp_col = actions.index(atom("grasped", goal.pick)) if goal is not None else -1
         self.codes: list[int] = []
         self.tracker = SuccessTracker()
         self.pending = ""
@@ -261,7 +263,8 @@ class _Outcome:
 def _episode_attrs(env: TaskEnv, perturber: Perturber | None, seconds: float) -> EpisodeAttrs:
     """The episode's attributes; those of sampled placements and perturbations only where they happened (so
     fixed-init, unperturbed stores keep their attributes)."""
-    attrs = EpisodeAttrs(instruction=env.instruction, scene=env.scene, goal=env.goal, seconds=seconds)
+    goal = getattr(env, "goal", None)  # absent where the task's goal is not one On(a, b) between objects
+    attrs = EpisodeAttrs(instruction=env.instruction, scene=env.scene, goal=goal, seconds=seconds)
     placement = getattr(env, "last_placement", None)
     if getattr(env, "sampled", False) and placement is not None:
         attrs.inits = getattr(getattr(env, "cfg", None), "inits", "sampled")

@@ -1,5 +1,5 @@
 """Policies that act in LIBERO: VLA models exposing their hidden states (the scripted expert is in
-``vlaprobe.envs.libero_expert``, next to the env it reads).
+``vlaprobe.experts``, next to the env it reads).
 
 :func:`make_policy` (from a :class:`~vlaprobe.configs.policy.PolicyConfig`, the one description of a policy:
 ``make_policy(PolicyConfig("tiny", device="cpu"))``) imports torch only when called, so importing this

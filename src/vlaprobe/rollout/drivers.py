@@ -6,7 +6,7 @@ on it (so the policy driver costs no second forward pass). :func:`make_driver` b
 The DAgger driver (Ross et al., 2011) lets the policy act and has the scripted expert label every visited
 state with its own action: a policy trained on expert demonstrations drifts into states the demonstrations
 never show, and these labels teach it to recover from them. The expert re-plans from whatever state the
-simulator is in (``vlaprobe.envs.libero_expert``), so its label is meaningful wherever the policy went.
+simulator is in (``vlaprobe.experts``), so its label is meaningful wherever the policy went.
 """
 
 from __future__ import annotations
@@ -103,7 +103,7 @@ class DaggerDriver:
 
 def _scripted_expert(env: TaskEnv, seed: int) -> Expert:
     from vlaprobe.envs.libero import LiberoTaskEnv
-    from vlaprobe.envs.libero_expert import ScriptedExpert
+    from vlaprobe.experts import ScriptedExpert
 
     if not isinstance(env, LiberoTaskEnv):
         raise VlaprobeError("the scripted expert reads the LIBERO simulator; use --driver policy elsewhere")

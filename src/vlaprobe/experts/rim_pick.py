@@ -1,7 +1,8 @@
-"""A privileged scripted expert for LIBERO pick-and-place: reads poses from the simulator, outputs 7-D actions.
+"""Skill: pick a bowl (or a mug) by its rim and place it on or into a target; reads poses from the simulator.
 
-It solves ``On(pick, place)`` goals (every LIBERO-spatial task) with one phase machine whose every decision is
-derived from the goal and the live scene, never from the task index:
+It solves every LIBERO-spatial task (``On(bowl, plate)``) and the bowl goals of LIBERO-goal (onto the stove,
+the cabinet, the plate, into a drawer) with one phase machine whose every decision is derived from the goal
+and the live scene, never from the task index:
 
 1. ``approach``: choose the side of the object's rim and the grasp depth (1.5-2.5 cm below the rim) where the
    gripper's collision boxes, swept from the pre-grasp height down to the grasp, stay clear of every other
@@ -19,12 +20,7 @@ If the object slips out of the fingers (or is dropped), moves before it is grasp
 the target after the release (knocked off), the expert opens, rises (``regrasp``) and starts over from where
 the object now is.
 
-Actions follow robosuite's OSC_POSE controller as LIBERO configures it (``osc_pose.json``): each step sets the
-goal pose relative to the current end-effector pose; position offset = action[:3] x 5 cm, orientation offset =
-rotation vector action[3:6] x 0.5 rad applied in the world frame (goal = R(delta) @ current). Aiming at a
-target is ``(target - current) / scale``, clipped to [-1, 1], plus a damping term (the arm lags its goal and
-would overshoot) and an integral term (the controller leaves a steady offset of up to ~2 cm far from the base
-and under a held object's weight).
+The controller (actions, damping, integral term) is :class:`~vlaprobe.experts.base.ArmSkill`'s.
 """
 
 from __future__ import annotations
@@ -32,7 +28,8 @@ from __future__ import annotations
 import numpy as np
 
 from vlaprobe.envs.libero import LiberoTaskEnv
-from vlaprobe.envs.libero_grasp import (
+from vlaprobe.experts.base import ArmSkill
+from vlaprobe.experts.geometry import (
     APPROACH_ABOVE_RIM,
     BLOCKED_ANGLE,
     CLEAR_MARGIN,
@@ -42,28 +39,22 @@ from vlaprobe.envs.libero_grasp import (
     DEPTH_COST,
     DESCEND_STEP,
     DESCEND_XY_TOL,
-    GAIN_D,
-    GAIN_I,
     GRASP_DEPTHS,
     GRIP_INSET,
-    INTEGRAL_MAX,
-    INTEGRATE_WITHIN,
     LOST_DISTANCE,
     MIN_OPENING,
     OFF_TARGET,
     OPEN,
     OPEN_STEPS,
     PHASE_STEPS,
-    POS_SCALE,
     POS_TOL,
     REACH_COST,
+    REGION_RADIUS,
     RELEASE_GAP,
     REPLAN_DISTANCE,
     RETREAT_HEIGHT,
-    ROT_SCALE,
     SETTLED_SPEED,
     SIDES,
-    STALL_STEPS,
     SUPPORT_SLACK,
     TURN_COST,
     YAW_TOL,
@@ -72,80 +63,40 @@ from vlaprobe.envs.libero_grasp import (
     _down_rotation,
     _rotvec,
 )
+from vlaprobe.experts.targets import Target, find_target
 from vlaprobe.symbols.world import WorldState
 
 
-class ScriptedExpert:
-    """Pick the goal's object by its rim and place it on the goal's target (see module doc).
+class RimPickPlace(ArmSkill):
+    """Pick ``pick`` by its rim and place it on ``place`` (see module doc).
 
     ``seed`` rotates the candidate grasp sides by a random fraction of their spacing, so that different seeds
     give slightly different (equally valid) trajectories. ``phase`` names the current phase (for logs).
     """
 
-    def __init__(self, env: LiberoTaskEnv, seed: int = 0) -> None:
-        self.env = env
-        self.seed = seed
-        sim_env = env.sim_env
-        robot = sim_env.robots[0]
-        self._model = sim_env.sim.model._model
-        self._data = sim_env.sim.data._data
-        self._eef_site = int(robot.eef_site_id)
-        self._pick = env.scene.tabletop.index(env.goal.pick)
-        self._place = env.scene.tabletop.index(env.goal.place)
-        self._gripper_geoms = np.array([self._model.geom(g).id for g in robot.gripper.contact_geoms])
-        self._robot_base = self._model.body(robot.robot_model.root_body).id
-        self._obstacles = self._obstacle_geoms(self._robot_base, sim_env.obj_body_id[env.goal.pick])
+    def __init__(self, env: LiberoTaskEnv, pick: str, place: Target, seed: int = 0) -> None:
+        super().__init__(env, seed, avoid=pick)
+        self._pick = env.scene.tabletop.index(pick)
+        self._goal_target = self._target = place
         self.reset()
-
-    def _obstacle_geoms(self, robot_body: int, pick_body: int) -> np.ndarray:
-        """Collision geoms the gripper must avoid: all but the robot's and the object to pick."""
-        model = self._model
-        roots = model.body_rootid[model.geom_bodyid]
-        collides = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
-        keep = collides & (roots != model.body_rootid[robot_body]) & (roots != model.body_rootid[pick_body])
-        return np.flatnonzero(keep)
 
     # ----- episode ---------------------------------------------------------------------------------------
     def reset(self) -> None:
         """Start a new episode (call after ``env.reset``)."""
+        super().reset()
         self.rng = np.random.default_rng(self.seed)
-        self._place = self.env.scene.tabletop.index(self.env.goal.place)  # undo a retarget
-        self.phase = "approach"
+        self._target = self._goal_target  # undo a retarget
         self._side: np.ndarray | None = None  # unit vector from the object's centre to the grasp side
         self._depth = GRASP_DEPTHS[0]  # grasp depth below the rim
-        self._finger_axis = self._current_finger_axis()  # target finger axis (world, horizontal)
         self._blocked: list[np.ndarray] = []  # sides where a descent was stopped by a collision
-        self._anchor = np.zeros(3)  # a phase's fixed target
         self._plan_xy = np.zeros(2)  # the object's box centre when its grasp side was chosen
-        self._last_pos = self._eef()[0]  # grip point at the previous step
-        self._integral = np.zeros(
-            3
-        )  # integral of the position error (the arm's steady offset), across phases
         self._enter("approach")
 
-    def _enter(self, phase: str) -> None:
-        self.phase = phase
-        self._phase_steps = 0
-        self._best_error = np.inf
-        self._stalled = 0
-
-    # ----- reading the simulator -------------------------------------------------------------------------
-    def _eef(self) -> tuple[np.ndarray, np.ndarray]:
-        """Grip-site position and rotation matrix."""
-        data = self._data
-        return data.site_xpos[self._eef_site].copy(), data.site_xmat[self._eef_site].reshape(3, 3).copy()
-
-    def _current_finger_axis(self) -> np.ndarray:
-        axis = self._data.site_xmat[self._eef_site].reshape(3, 3)[:, 0].copy()  # the fingers open along x
-        axis[2] = 0.0
-        return axis / np.linalg.norm(axis)
-
-    def _obstacle_boxes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """World centres, rotations and half sizes of the obstacle geoms' bounding boxes (exact for boxes)."""
-        model, data, g = self._model, self._data, self._obstacles
-        rot = data.geom_xmat[g].reshape(-1, 3, 3)
-        centre = data.geom_xpos[g] + np.einsum("bij,bj->bi", rot, model.geom_aabb[g, :3])
-        return centre, rot, model.geom_aabb[g, 3:]
+    def _place_top(self, state: WorldState, place: np.ndarray) -> float:
+        """Height of the place target's top: an object's box top; for a region, the highest obstacle there."""
+        if not self._target.region:
+            return float(state.aabb_hi[self._target.index][2])
+        return self._corridor_top(place, place, REGION_RADIUS)
 
     def _gripper_points(self) -> np.ndarray:
         """(P, 3) points on the surfaces of the gripper's collision boxes (hand, fingers; the pads lie inside the
@@ -168,17 +119,6 @@ class ScriptedExpert:
             for b in boxes
         ]
         return np.concatenate([b for b, dropped in zip(boxes, inside, strict=True) if not dropped])
-
-    def _corridor_top(self, a: np.ndarray, b: np.ndarray, width: float) -> float:
-        """Highest obstacle top whose footprint comes within ``width`` of the horizontal segment a-b."""
-        centre, rot, half = self._obstacle_boxes()
-        extent = np.einsum("bij,bj->bi", np.abs(rot), half)
-        seg = b[:2] - a[:2]
-        t = np.clip(((centre[:, :2] - a[:2]) @ seg) / max(float(seg @ seg), 1e-9), 0.0, 1.0)
-        closest = a[:2] + t[:, None] * seg
-        gap = np.linalg.norm(np.maximum(np.abs(centre[:, :2] - closest) - extent[:, :2], 0.0), axis=1)
-        tops = (centre[:, 2] + extent[:, 2])[gap < width]
-        return float(tops.max()) if len(tops) else float(self.env.world_state().table_height)
 
     # ----- planning --------------------------------------------------------------------------------------
     @staticmethod
@@ -258,28 +198,6 @@ class ScriptedExpert:
         self._side = None
         self._enter("regrasp")
 
-    # ----- control ---------------------------------------------------------------------------------------
-    def _action(self, target: np.ndarray, gripper: float, speed: float = 1.0) -> np.ndarray:
-        """Move the grip point towards ``target`` (at most ``speed`` action units), fingers along the plan."""
-        pos, rot = self._eef()
-        error = (target - pos) / POS_SCALE
-        near = np.abs(error) < INTEGRATE_WITHIN  # integrate only the residual, not the travel (no windup)
-        self._integral = np.clip(self._integral + GAIN_I * error * near, -INTEGRAL_MAX, INTEGRAL_MAX)
-        action = np.zeros(7)
-        velocity = (pos - self._last_pos) / POS_SCALE  # per step, in action units
-        action[:3] = np.clip(error + self._integral - GAIN_D * velocity, -speed, speed)
-        action[3:6] = np.clip(_rotvec(_down_rotation(self._finger_axis) @ rot.T) / ROT_SCALE, -1.0, 1.0)
-        action[6] = gripper
-        return action
-
-    def _stuck(self, error: float) -> bool:
-        """Track a shrinking error; True once it has not shrunk by 1 mm for ``STALL_STEPS`` steps."""
-        if error < self._best_error - 1e-3:
-            self._best_error, self._stalled = error, 0
-        else:
-            self._stalled += 1
-        return self._stalled >= STALL_STEPS
-
     def _holding(self, state: WorldState, pos: np.ndarray) -> bool:
         """The fingers still hold the object: not shut on nothing, and the grip point at the object."""
         opening = float(state.gripper_qpos[0] - state.gripper_qpos[1])
@@ -288,15 +206,9 @@ class ScriptedExpert:
         return bool(opening > MIN_OPENING and outside < LOST_DISTANCE)
 
     def retarget(self, name: str) -> None:
-        """Place the object on tabletop object ``name`` instead of the goal's (a fault: ``--expert-faults``)."""
-        self._place = self.env.scene.tabletop.index(name)
-
-    def act(self) -> np.ndarray:
-        """The (7,) action for the current simulator state."""
-        action = self._decide(self.env.world_state())
-        self._phase_steps += 1
-        self._last_pos = self._eef()[0]
-        return action
+        """Place the object on scene object or region ``name`` instead of the goal's, until the next reset (a
+        fault: ``--expert-faults``)."""
+        self._target = find_target(self.env, name)
 
     def _approach(
         self, lo: np.ndarray, hi: np.ndarray, pos: np.ndarray, rot: np.ndarray
@@ -362,7 +274,7 @@ class ScriptedExpert:
 
     def _decide(self, state: WorldState) -> np.ndarray:
         lo, hi = state.aabb_lo[self._pick], state.aabb_hi[self._pick]
-        obj, place = state.pos[self._pick], state.pos[self._place]
+        obj, place = state.pos[self._pick], self._target.point(state, self._data)
         pos, rot = self._eef()
 
         if self.phase in ("lift", "carry", "lower") and not self._holding(state, pos):
@@ -411,7 +323,7 @@ class ScriptedExpert:
                 return self._action(target, CLOSE)
 
         if self.phase == "lower":
-            place_top = float(state.aabb_hi[self._place][2])
+            place_top = self._place_top(state, place)
             gap = lo[2] - (place_top + RELEASE_GAP)
             if gap < 0.003 or self._stuck(gap):
                 self._enter("release")

@@ -10,8 +10,8 @@ import pytest
 
 from vlaprobe.configs.env import EnvConfig
 from vlaprobe.envs.libero import LiberoTaskEnv
-from vlaprobe.envs.libero_expert import ScriptedExpert
-from vlaprobe.envs.libero_grasp import _box_distance, _clip_below, _down_rotation
+from vlaprobe.experts import ScriptedExpert
+from vlaprobe.experts.geometry import _box_distance, _clip_below, _down_rotation
 from vlaprobe.symbols import atom
 
 BOWL = "akita_black_bowl_1"

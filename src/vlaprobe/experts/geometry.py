@@ -1,6 +1,6 @@
 """The scripted LIBERO expert's constants and the geometry it plans with (boxes, rims, gripper frames).
 
-Kept apart from :mod:`vlaprobe.envs.libero_expert` (the phase machine) so that each stays readable; the values
+Kept apart from :mod:`vlaprobe.experts` (the phase machine) so that each stays readable; the values
 are documented where declared.
 """
 
@@ -45,6 +45,7 @@ PHASE_STEPS = 80  # steps after which an approach or descent counts as failed
 MIN_OPENING = 0.001  # finger opening (metres) below which the fingers hold nothing
 LOST_DISTANCE = 0.02  # grip point this far outside the object's box: the grasp is lost
 REPLAN_DISTANCE = 0.03  # the object moved this far (horizontally) since its grasp was planned: plan again
+REGION_RADIUS = 0.02  # a region target's top is the highest obstacle this close to its centre
 OFF_TARGET = 0.06  # a released object this far (horizontally) from the target's origin is not on it
 
 
@@ -87,3 +88,28 @@ def _down_rotation(finger_axis: np.ndarray) -> np.ndarray:
     """Grip-site frame pointing straight down with the fingers opening along ``finger_axis`` (its x axis)."""
     z = np.array([0.0, 0.0, -1.0])
     return np.stack([finger_axis, np.cross(z, finger_axis), z], axis=1)
+
+
+# Body grasps (boxes, cans, bottles): the grip point below the object's top.
+BODY_DEPTH = 0.03  # at most this far below the top (the hand's underside is ~2.6 cm above the grip point)
+BODY_MIN_DEPTH = 0.008  # at least this far below the top (flat boxes: half their height otherwise)
+
+# Knobs (the flat stove's: a bar 7 cm x 2.4 cm on a hinge about the vertical).
+KNOB_DEPTH = 0.012  # grip point below the handle's top
+KNOB_TURN = 0.25  # yaw the fingers are asked to turn ahead of where they are (radians)
+KNOB_MARGIN = 0.15  # turn this far past LIBERO's on/off threshold (radians)
+
+# Pushing (a plate along the table).
+PUSH_BEHIND = 0.03  # fingers start this far behind the object's far edge
+PUSH_INSET = 0.025  # ... or this far inside it when something stands behind
+PUSH_CLEARANCE = (
+    0.04  # behind is free when nothing within this distance stands this high over the object's bottom
+)
+PUSH_HEIGHT = 0.012  # grip point above the object's bottom while pushing
+PUSH_INSIDE = 0.5  # done once the object's origin is within this share of the region's half sizes
+PUSH_STEP = 0.02  # the fingers aim this far ahead along the way to the region (metres)
+PUSH_DRIFT = 0.04  # the object this far off the push line: approach again from behind it
+
+# Drawers (opened by their handle from the front).
+DRAWER_PRE = 0.08  # pre-grasp (and retreat) distance in front of the handle
+DRAWER_MARGIN = 0.02  # pull this far past LIBERO's open threshold (metres of slide)

@@ -1,0 +1,149 @@
+"""The expert's planner: the BDDL goal conjunction -> an ordered list of skill steps, then the skills that run
+them one after another (:class:`ScriptedExpert`).
+
+Each conjunct becomes one step: ``Open``/``Close`` a drawer (a door such as the microwave's has no skill), ``TurnOn``/``TurnOff`` an on-off
+fixture, ``In``/``On`` a movable object: a pick-and-place (by the rim for bowls and mugs, by the body for
+anything else), or a push when a plate goes onto a placement region of the table. Putting something ``In`` a
+drawer first opens it. Steps run in the order opening, switching, placing, closing (a drawer is closed after
+what goes into it is in).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from vlaprobe.configs.env import EnvConfig
+from vlaprobe.envs.libero import LiberoTaskEnv
+from vlaprobe.errors import VlaprobeError
+from vlaprobe.experts.base import ArmSkill
+from vlaprobe.symbols import Scene
+from vlaprobe.symbols.goals import GoalConjunction
+
+SkillName = Literal["open", "close", "turn_on", "turn_off", "rim_place", "body_place", "push"]
+ORDER: tuple[SkillName, ...] = ("open", "turn_on", "turn_off", "rim_place", "body_place", "push", "close")
+RIM_OBJECTS = ("bowl", "mug")
+"""Instance-name parts of the objects picked by their rim (LIBERO names instances ``<category>_<n>``)."""
+PUSHED_OBJECTS = ("plate",)
+"""Instance-name parts of the objects pushed, not carried, onto a placement region of the table."""
+
+
+@dataclass(frozen=True)
+class Step:
+    """One skill to run: ``skill`` on ``subject`` (the object, region or fixture it handles), towards ``target``
+    (where a placed or pushed object goes; empty otherwise)."""
+
+    skill: SkillName
+    subject: str
+    target: str = ""
+
+
+def _kind(name: str, parts: tuple[str, ...]) -> bool:
+    return any(part in name for part in parts)
+
+
+def plan_steps(goal: GoalConjunction, scene: Scene) -> list[Step]:
+    """The ordered steps that make every conjunct of ``goal`` true in ``scene`` (module doc); a conjunct no
+    skill handles is a VlaprobeError naming it."""
+    steps: list[Step] = []
+    for conjunct in goal.conjuncts:
+        pred, args = conjunct.predicate, conjunct.args
+        if pred in ("Open", "Close") and args[0] in scene.containers:  # drawers (doors: no skill yet)
+            steps.append(Step("open" if pred == "Open" else "close", args[0]))
+        elif pred in ("TurnOn", "TurnOff") and args[0] in scene.on_off:
+            steps.append(Step("turn_on" if pred == "TurnOn" else "turn_off", args[0]))
+        elif pred in ("In", "On") and args[0] in scene.pickupable:
+            what, where = args
+            if pred == "In" and where in scene.containers:
+                steps.append(Step("open", where))
+            if pred == "On" and _kind(what, PUSHED_OBJECTS) and where not in scene.tabletop + scene.regions:
+                steps.append(Step("push", what, where))
+            else:
+                steps.append(Step("rim_place" if _kind(what, RIM_OBJECTS) else "body_place", what, where))
+        else:
+            raise VlaprobeError(f"the scripted expert has no skill for the goal conjunct {conjunct}")
+    unique = list(dict.fromkeys(steps))
+    return sorted(unique, key=lambda s: ORDER.index(s.skill))
+
+
+def check_tasks_plannable(env: EnvConfig, tasks: tuple[int, ...], expert: bool, perturb: bool) -> None:
+    """Before a collection: with the expert (``expert``) every task's goal must have skills, and ``--perturb``
+    (``perturb``) needs a pick-and-place goal (what to drop, displace or knock off); one line names the task."""
+    from vlaprobe.envs.bddl_scene import pick_place_goal, task_bddl, task_scene
+
+    for task in tasks:
+        problem = task_bddl(env.suite, task)
+        scene = task_scene(env.suite, task, env.assets)
+        try:
+            if expert:
+                plan_steps(problem.goal, scene)
+        except VlaprobeError as exc:
+            raise VlaprobeError(f"{env.suite} task {task}: {exc}; leave it out of --tasks") from None
+        if perturb and pick_place_goal(problem.goal, scene) is None:
+            raise VlaprobeError(
+                f"--perturb needs a pick-and-place goal (one On(a, b) between objects); {env.suite} task {task}'s "
+                f"goal is {problem.goal}: collect it without --perturb"
+            )
+
+
+def build_skill(env: LiberoTaskEnv, step: Step, seed: int) -> ArmSkill:
+    """The skill object that runs ``step`` in ``env``."""
+    from vlaprobe.experts.body_pick import BodyPickPlace
+    from vlaprobe.experts.drawer import Drawer
+    from vlaprobe.experts.knob import Knob
+    from vlaprobe.experts.push import Push
+    from vlaprobe.experts.rim_pick import RimPickPlace
+    from vlaprobe.experts.targets import find_target
+
+    if step.skill == "rim_place":
+        return RimPickPlace(env, step.subject, find_target(env, step.target), seed)
+    if step.skill == "body_place":
+        return BodyPickPlace(env, step.subject, find_target(env, step.target), seed)
+    if step.skill == "push":
+        return Push(env, step.subject, find_target(env, step.target), seed)
+    if step.skill in ("open", "close"):
+        return Drawer(env, step.subject, opening=step.skill == "open", seed=seed)
+    return Knob(env, step.subject, on=step.skill == "turn_on", seed=seed)
+
+
+class ScriptedExpert:
+    """The privileged scripted expert of a LIBERO task: runs the planned skills one after another.
+
+    ``seed`` varies the skills' trajectories (equally valid ones). ``phase`` names the running skill's phase
+    (prefixed by the skill when the plan has several)."""
+
+    def __init__(self, env: LiberoTaskEnv, seed: int = 0) -> None:
+        self.env, self.seed = env, seed
+        self.steps = plan_steps(env.goal_conjunction, env.scene)
+        self.skills = [build_skill(env, step, seed) for step in self.steps]
+        self.reset()
+
+    def reset(self) -> None:
+        """Start a new episode (call after ``env.reset``)."""
+        self._current = 0
+        self.skills[0].reset()
+
+    @property
+    def phase(self) -> str:
+        skill = self.skills[self._current]
+        return skill.phase if len(self.skills) == 1 else f"{self.steps[self._current].skill}:{skill.phase}"
+
+    def retarget(self, name: str) -> None:
+        """Place the first pick-and-place's object on ``name`` instead of the goal's target, until the next
+        reset (a fault: ``--expert-faults``)."""
+        from vlaprobe.experts.rim_pick import RimPickPlace
+
+        for skill in self.skills:
+            if isinstance(skill, RimPickPlace):
+                skill.retarget(name)
+                return
+        raise VlaprobeError("--expert-faults wrong_target needs a task whose goal puts a bowl onto something")
+
+    def act(self) -> np.ndarray:
+        """The (7,) action for the current simulator state."""
+        while self.skills[self._current].done and self._current + 1 < len(self.skills):
+            self._current += 1
+            self.skills[self._current].reset()
+        return self.skills[self._current].act()
