@@ -112,6 +112,7 @@ export interface EpisodeStart {
   source: "live" | "recorded" | "store";
   store_episode?: string | null;
   subgoals: SubgoalInfo[];
+  suite?: string;
   task: number;
   type?: "episode_start";
 }
@@ -289,6 +290,7 @@ export interface Hello {
   num_init_states: number;
   probes: ProbeInfo;
   running: Running | null;
+  suite?: string;
   tasks: TaskInfo[];
   type?: "hello";
   version: string;
