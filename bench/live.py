@@ -341,7 +341,10 @@ def main() -> None:
     port = server.servers[0].sockets[0].getsockname()[1]
     url = f"ws://127.0.0.1:{port}/ws"
     session = app.state.session
-    spec = EpisodeSpec(0, env.instruction, 0, "synthetic", STEPS_FAST, "live", env.goal, atoms)
+    spec = EpisodeSpec(
+        task=0, instruction=env.instruction, init=0, driver="synthetic", max_steps=STEPS_FAST, source="live",
+        suite=cfg.env.suite, goal=env.goal, atoms=atoms,
+    )  # fmt: skip
 
     def synthetic(steps: int) -> Any:
         return lambda: session.start(
