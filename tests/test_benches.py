@@ -25,6 +25,7 @@ KEYS = {
     "gpu": "parameters",
     "init_variation": "varying", "label_speed": "label_ms_per_state", "live": "rate_ratio",
     "placement_checks": "libero_fixed_inits", "probe_training": "speedup", "tiny_forward": "ms_per_step",
+    "takeover_alarm": "alarm_ms_median",
     "web_ui": "steps",
 }  # fmt: skip
 """A key each bench's final JSON line (or each of its rows) must hold."""

@@ -41,7 +41,7 @@ COMMANDS: dict[str, Command] = {
     "run": Command("vlaprobe.configs.run:RunConfig", "vlaprobe.pipeline:main", "The whole experiment: collect, train, report (CPU default)."),
     "tasks": Command("vlaprobe.configs.suite:TasksConfig", "vlaprobe.envs.suite:tasks", "List the suite's tasks (index, instruction)."),
     "atoms": Command("vlaprobe.configs.suite:AtomsConfig", "vlaprobe.envs.suite:atoms", "Print the atoms true at a settled init state."),
-    "collect": Command("vlaprobe.configs.collect:CollectConfig", "vlaprobe.collection.collect:collect", "Run episodes and record every layer's hidden states with the atoms of each step."),
+    "collect": Command("vlaprobe.configs.collect:CollectConfig", "vlaprobe.cognition.alarm:collect", "Run episodes and record every layer's hidden states with the atoms of each step."),
     "info": Command("vlaprobe.configs.collect:InfoConfig", "vlaprobe.collection.info:info", "Summarize an activation store."),
     "train": Command("vlaprobe.configs.train:TrainConfig", "vlaprobe.probes.train:main", "Train and evaluate per-layer linear probes."),
     "hypotheses": Command("vlaprobe.configs.hypotheses:HypothesesConfig", "vlaprobe.probes.hypotheses_run:main", "H1/H2: best, earliest and steepest layer per head; object-action differences with bootstrap intervals."),

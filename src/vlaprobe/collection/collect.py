@@ -116,6 +116,8 @@ def _run_meta(cfg: CollectConfig) -> JsonObject:
         extra["expert_faults"] = FaultSpec.parse(cfg.expert_faults).text()
     if cfg.driver == "dagger":
         extra["dagger_beta"] = cfg.dagger_beta
+    if cfg.intervention.takeover != "none":
+        extra["takeover"] = cfg.intervention.text()
     return {
         **extra,
         "driver": cfg.driver,

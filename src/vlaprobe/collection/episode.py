@@ -19,6 +19,7 @@ from vlaprobe.files import Json, JsonObject
 from vlaprobe.rollout import StepRecord
 from vlaprobe.rollout.faults import FaultMark
 from vlaprobe.rollout.perturb import KIND_CODE
+from vlaprobe.rollout.takeover import Takeovers
 from vlaprobe.symbols import Articulation, Goal, Scene, WorldState
 
 STEP_DTYPES: dict[str, type] = {
@@ -187,6 +188,9 @@ class EpisodeAttrs:
     failure_step: int | None = None
     """The row from which the episode's failure was certain (an injected fault: the expert gave up or let go on
     a wrong target); None where unknown."""
+    takeovers: Takeovers | None = None
+    """When and why the scripted expert took over from the policy, and for how many steps (``--takeover``);
+    None: collected without."""
     extra: JsonObject = field(default_factory=dict)
     """Attributes of other writers, kept as read."""
 
@@ -207,6 +211,8 @@ class EpisodeAttrs:
         if self.faults is not None:
             out["faults"] = [{"kind": f.kind, "row": f.row} for f in self.faults]
             out["failure_step"] = self.failure_step
+        if self.takeovers is not None:
+            out["takeovers"] = self.takeovers.to_json()
         return {**out, **self.extra}
 
     @classmethod
@@ -233,6 +239,7 @@ class EpisodeAttrs:
             else [PerturbationMark(str(m["kind"]), int(m["row"])) for m in marks],
             faults=None if faults is None else [FaultMark(str(m["kind"]), int(m["row"])) for m in faults],
             failure_step=None if attrs.get("failure_step") is None else int(attrs["failure_step"]),
+            takeovers=None if attrs.get("takeovers") is None else Takeovers.from_json(attrs["takeovers"]),
             extra={k: v for k, v in attrs.items() if k not in known},
         )
 

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from vlaprobe.collection.episode import EpisodeAttrs, EpisodeSteps, PerturbationMark, StepRows
 from vlaprobe.collection.plan import Unit
 from vlaprobe.collection.store import EpisodeInfo
+from vlaprobe.collection.takeovers import MakeSupervisor, matched_counts, random_supervisor
 from vlaprobe.configs.collect import CollectConfig
 from vlaprobe.configs.env import EnvConfig, SuiteName
 from vlaprobe.configs.policy import PolicyConfig
@@ -37,6 +38,7 @@ from vlaprobe.rollout import (
 from vlaprobe.rollout.faults import FaultSpec, FaultyExpert
 from vlaprobe.rollout.perturb import KIND_CODE, Perturber, PerturbSpec
 from vlaprobe.rollout.runner import MakeDriver, default_threads
+from vlaprobe.rollout.takeover import Supervisor, TakeoverDriver
 from vlaprobe.symbols.vocabulary import atom
 
 
@@ -115,9 +117,21 @@ class Worker:
         make_policy: MakePolicy = _make_policy,
         make_driver: MakeDriver = make_driver,
         list_tasks: ListTasks = _suite_tasks,
+        make_supervisor: MakeSupervisor | None = None,
     ) -> None:
+        """``make_supervisor``: the cognition's alarm of an episode (``--takeover alarm`` needs it)."""
         self.cfg = cfg
         self._list_tasks = list_tasks
+        mode = cfg.intervention.takeover
+        if mode == "alarm" and make_supervisor is None:
+            raise VlaprobeError(
+                "--takeover alarm needs the cognition's alarm; run it through `vlaprobe collect`"
+            )
+        if mode == "random" and cfg.intervention.takeover_match is None:
+            raise VlaprobeError("--takeover random needs --takeover-match STORE (the alarm run to match)")
+        self._make_supervisor = make_supervisor
+        match = cfg.intervention.takeover_match
+        self._counts = matched_counts(match) if mode == "random" and match is not None else {}
         import torch
 
         torch.set_num_threads(cfg.threads or default_threads(cfg.workers))
@@ -181,7 +195,8 @@ class Worker:
         build = self.runner.envs.builds > built
         build_seconds = time.perf_counter() - start if build else 0.0
         spec = PerturbSpec.parse(self.cfg.perturb)
-        control = EpisodeControl() if spec.any else None
+        supervisor = self._supervisor(env, unit, seed)
+        control = EpisodeControl() if spec.any or supervisor is not None else None
         perturber = Perturber(spec, seed, env.scene, env.goal) if spec.any else None  # checked up front
         records = self.runner.run(
             env,
@@ -193,12 +208,16 @@ class Worker:
             control=control,
             beta=self.cfg.dagger_beta,
             faults=FaultSpec.parse(self.cfg.expert_faults),
+            takeover=self.cfg.intervention.takeover,
+            takeover_steps=self.cfg.intervention.takeover_steps,
         )
         start = time.perf_counter()
         rows, track, done = StepRows(), _Outcome(env, perturber, control), []
         for r in records:
             track.add(r)  # perturbations come due while the episode runs
             done.append(r)
+            if supervisor is not None and control is not None and (reason := supervisor.observe(r)):
+                control.take_over(reason)
         if self._deferred is not None:
             done = self._deferred.fill(done, env.instruction)
         for r in done:
@@ -219,7 +238,18 @@ class Worker:
         attrs = _episode_attrs(env, perturber, round(seconds, 3))
         if isinstance(faulty := self.runner.driver, FaultyExpert):
             attrs.faults, attrs.failure_step = list(faulty.marks), faulty.failure_step
+        if isinstance(taking := self.runner.driver, TakeoverDriver):
+            attrs.takeovers = taking.log
         return EpisodeResult(info, steps, attrs, seconds, track.label_seconds, build, build_seconds)
+
+    def _supervisor(self, env: TaskEnv, unit: Unit, seed: int) -> Supervisor | None:
+        """Who asks for takeovers in this episode (None without ``--takeover``)."""
+        cfg = self.cfg.intervention
+        if cfg.takeover == "random":
+            return random_supervisor(self._counts, unit.task, unit.init, seed, cfg)
+        if cfg.takeover == "alarm" and self._make_supervisor is not None:
+            return self._make_supervisor(env, cfg)
+        return None
 
     def close(self) -> None:
         self.runner.close()

@@ -51,6 +51,7 @@ DEFINING = (
     Setting("driver", "--driver"),
     Setting("dagger_beta", "--dagger-beta", 0.0),
     Setting("expert_faults", "--expert-faults", ""),
+    Setting("takeover", "--takeover and its settings", ""),
     Setting("suite", "--env.suite"),
     Setting("env", "--env"),
     Setting("seed", "--seed"),

@@ -10,6 +10,7 @@ import tyro
 
 from vlaprobe.configs.env import EnvConfig
 from vlaprobe.configs.policy import PolicyConfig
+from vlaprobe.configs.takeover import TakeoverConfig
 
 DriverName = Literal["expert", "policy", "dagger"]
 """Who acts in an episode: the scripted expert, the model, or the model labelled by the expert (DAgger)."""
@@ -61,6 +62,8 @@ class CollectConfig:
     wrong_target: the object is placed on another object; no_recovery: the expert gives up instead of
     re-grasping. Probabilities per episode, drawn from its seed; marked per episode with the row from which the
     failure was certain (docs/failures.md). Add --keep-failed to store the failures. Default: none."""
+    intervention: Annotated[TakeoverConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=TakeoverConfig)
+    """When the scripted expert takes over from the policy (--takeover alarm|random, docs/failures.md)."""
     keep_failed: bool = False
     """Also store failed episodes (marked success=false) instead of only recording that they were tried."""
     workers: int = 1

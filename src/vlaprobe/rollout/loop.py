@@ -11,6 +11,7 @@ collection passes none and buffers the records into the store (``vlaprobe.collec
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections.abc import Iterator
@@ -22,6 +23,7 @@ from vlaprobe.envs.base import Observation, TaskEnv
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.policies.base import PolicyStep, VLAPolicy
 from vlaprobe.rollout.drivers import Driver
+from vlaprobe.rollout.takeover import Takeover, TakeoverDriver
 from vlaprobe.symbols import WorldState
 
 GRIPPER_OPEN = -1.0
@@ -86,6 +88,9 @@ class StepRecord:
     expert_action: np.ndarray | None = None
     """(7,) the scripted expert's action for this observation where it labels states the policy visits
     (``--driver dagger``; NaN on the terminal row); None under the other drivers."""
+    takeover: Takeover | None = None
+    """The takeover under which the scripted expert executed this row's action (``--takeover``); None when
+    the driver acted, and in a store (which keeps an episode's takeovers as an attribute)."""
 
 
 @dataclass
@@ -128,6 +133,7 @@ class EpisodeControl:
         self._running.set()
         self._drop_steps = 0
         self._move: tuple[str, tuple[float, float]] | None = None
+        self._takeover: str | None = None
 
     def stop(self) -> None:
         """End the episode after the current step (a paused loop wakes up and ends)."""
@@ -152,6 +158,17 @@ class EpisodeControl:
         """Move object ``name`` to (x, y) on the table before the next observation (the driver re-plans)."""
         with self._lock:
             self._move = (name, (float(xy[0]), float(xy[1])))
+
+    def take_over(self, reason: str) -> None:
+        """Hand the next actions to the scripted expert (``--takeover``; ``reason`` is recorded with it)."""
+        with self._lock:
+            self._takeover = reason
+
+    def take_takeover(self) -> str | None:
+        """The reason of a pending takeover request, if any (consumes it)."""
+        with self._lock:
+            reason, self._takeover = self._takeover, None
+            return reason
 
     def take_move(self) -> tuple[str, tuple[float, float]] | None:
         """The pending move, if any (consumes it)."""
@@ -205,6 +222,7 @@ def _record(
     perturbation: str,
     timings: StepTimings,
     expert_action: np.ndarray | None,
+    takeover: Takeover | None,
 ) -> StepRecord:
     return StepRecord(
         t=t,
@@ -225,6 +243,7 @@ def _record(
         perturbation=perturbation,
         timings=timings,
         expert_action=expert_action,
+        takeover=takeover,
     )
 
 
@@ -297,8 +316,20 @@ def run_episode(
             driver_ms=(t3 - t2) * 1e3,
             total_ms=env_ms + (t3 - t0) * 1e3,
         )
+        acting = driver.acting if isinstance(driver, TakeoverDriver) and not terminal else None
+        acting = None if acting is None else dataclasses.replace(acting)  # as of this row
         yield _record(
-            t, obs, out, world, (object_atoms, action_atoms), action, terminal, perturbation, timings, label
+            t,
+            obs,
+            out,
+            world,
+            (object_atoms, action_atoms),
+            action,
+            terminal,
+            perturbation,
+            timings,
+            label,
+            acting,
         )
         if terminal:
             return

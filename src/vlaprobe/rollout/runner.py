@@ -16,11 +16,14 @@ from collections.abc import Callable, Iterable, Iterator
 import numpy as np
 
 from vlaprobe.configs.collect import DriverName
+from vlaprobe.configs.takeover import TakeoverMode
 from vlaprobe.envs.base import TaskEnv
+from vlaprobe.errors import VlaprobeError
 from vlaprobe.policies.base import VLAPolicy
-from vlaprobe.rollout.drivers import Driver, make_driver
+from vlaprobe.rollout.drivers import DaggerDriver, Driver, make_driver
 from vlaprobe.rollout.faults import FaultSpec, with_faults
 from vlaprobe.rollout.loop import EpisodeControl, StepRecord, run_episode
+from vlaprobe.rollout.takeover import TakeoverDriver
 
 MakeDriver = Callable[[DriverName, TaskEnv, VLAPolicy, int, float], Driver]
 """Builds a driver: (name, simulator, observed policy, episode seed, DAgger's beta)."""
@@ -90,13 +93,19 @@ class EpisodeRunner:
         control: EpisodeControl | None = None,
         beta: float = 0.0,
         faults: FaultSpec | None = None,
+        takeover: TakeoverMode = "none",
+        takeover_steps: int = 0,
     ) -> Iterator[StepRecord]:
         """Seed, build the driver and run one episode (see :func:`vlaprobe.rollout.run_episode`); ``beta`` is
-        the dagger driver's share of expert-executed steps, ``faults`` those injected into the expert."""
+        the dagger driver's share of expert-executed steps, ``faults`` those injected into the expert;
+        ``takeover`` other than "none": the scripted expert acts ``takeover_steps`` actions whenever ``control``
+        asks (:mod:`vlaprobe.rollout.takeover`)."""
         seed_everything(seed)
         chosen = self._make_driver(driver, env, self.policy, seed, beta)
         if faults is not None and faults.any:
             chosen = with_faults(chosen, env, faults, seed)
+        if takeover != "none":
+            chosen = self._with_takeover(chosen, driver, env, seed, control, (takeover, takeover_steps))
         self.driver = chosen
         yield from run_episode(
             env,
@@ -107,6 +116,29 @@ class EpisodeRunner:
             post_success_steps=post_success_steps,
             control=control,
         )
+
+    def _with_takeover(
+        self,
+        chosen: Driver,
+        name: DriverName,
+        env: TaskEnv,
+        seed: int,
+        control: EpisodeControl | None,
+        how: tuple[TakeoverMode, int],
+    ) -> TakeoverDriver:
+        if name == "expert":
+            raise VlaprobeError(
+                "--takeover hands the policy's control to the expert; use --driver policy or dagger"
+            )
+        if control is None:
+            raise VlaprobeError("a takeover is asked for through the episode's control; pass one")
+        # Under DAgger the driver's own expert labels every step: its label is the expert's action.
+        expert = (
+            None
+            if isinstance(chosen, DaggerDriver)
+            else self._make_driver("expert", env, self.policy, seed, 0.0)
+        )
+        return TakeoverDriver(chosen, expert, control, how[1], how[0])
 
     def close(self) -> None:
         self.envs.close()

@@ -1,0 +1,114 @@
+"""The cognition's alarm (``--takeover alarm``): when it fires, the scripted expert takes over from the policy.
+
+:class:`AlarmRule` reads the cognition's conclusions step by step and fires, with its reason, on a stall (no
+subgoal done for ``stall`` steps since the start, the last subgoal done or the last hand-back), on a
+regression or a dropped object (the cognition's events), or on a rule violation held ``hold`` steps. While
+the expert acts it stays silent. :class:`CognitionSupervisor` runs a cognition on a collected episode's
+records (ground-truth atoms, or the probes' predictions) and asks for a takeover when the rule fires;
+:func:`collect` is ``vlaprobe collect`` with that supervisor.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+
+from vlaprobe.cognition.core import Cognition, CognitionStep
+from vlaprobe.configs.collect import CollectConfig
+from vlaprobe.configs.takeover import TakeoverConfig
+from vlaprobe.envs.base import TaskEnv
+from vlaprobe.rollout import StepRecord
+
+REACTIVE = ("regression", "dropped")
+"""The cognition's events that fire the alarm at once."""
+
+
+@dataclass(frozen=True)
+class Alarm:
+    """Why the alarm fired."""
+
+    kind: str
+    """"stall", "regression", "dropped" or "violation"."""
+    reason: str
+    """One line."""
+    rules: tuple[str, ...] = ()
+    """The rules whose violations drove it."""
+    atoms: tuple[str, ...] = ()
+    """The beliefs involved (the violation's atoms, or the stalled subgoal)."""
+
+
+class AlarmRule:
+    """Fires on stalls, regressions, drops and held violations; at most ``most`` times per episode."""
+
+    def __init__(self, stall: int, hold: int, most: int) -> None:
+        self.stall, self.hold, self.most = stall, hold, most
+        self.reset()
+
+    def reset(self) -> None:
+        self.fired, self._since, self._level = 0, 0, -1.0
+
+    def check(self, step: CognitionStep, acting: bool) -> Alarm | None:
+        """The alarm at this step, or None (``acting``: the expert executed this step's action)."""
+        t = step.t
+        if step.progress != self._level:
+            self._level, self._since = step.progress, t
+        if acting:
+            self._since = t  # the stall counts from the hand-back
+            return None
+        if self.fired >= self.most or step.goal_reached:
+            return None
+        alarm = self._why(step, t)
+        if alarm is not None:
+            self.fired += 1
+            self._since = t
+        return alarm
+
+    def _why(self, step: CognitionStep, t: int) -> Alarm | None:
+        for e in step.events:
+            if e.kind in REACTIVE:
+                return Alarm(e.kind, e.message)
+        held = [v for v in step.violations if t - v.since + 1 >= self.hold]
+        if held:
+            rules = tuple(sorted({v.rule for v in held}))
+            atoms = tuple(sorted({a for v in held for a in v.atoms}))
+            return Alarm("violation", held[0].message, rules, atoms)
+        if t - self._since >= self.stall:
+            active = next((g.name for g in step.subgoals if g.status != "done"), "")
+            return Alarm(
+                "stall", f"no subgoal done for {t - self._since} steps (next: {active})", (), (active,)
+            )
+        return None
+
+
+class CognitionSupervisor:
+    """The alarm of one collected episode: a cognition on its records' atoms (or the probes' predictions)."""
+
+    def __init__(self, env: TaskEnv, cfg: TakeoverConfig) -> None:
+        from vlaprobe.cognition.readout import ProbeReadout
+
+        vocab = env.labeler.vocabulary
+        self.readout = None if cfg.takeover_probes is None else ProbeReadout.load(cfg.takeover_probes)
+        probed = None if self.readout is None else self.readout.probed
+        self.cognition = Cognition(vocab.object_atoms, vocab.action_atoms, env.goal, probed=probed)
+        self.rule = AlarmRule(cfg.takeover_stall, cfg.takeover_hold, cfg.takeover_most)
+
+    def observe(self, record: StepRecord) -> str | None:
+        if self.readout is None:
+            obj, act = np.asarray(record.object_atoms), np.asarray(record.action_atoms)
+        else:
+            a = self.readout.assign(record.hidden)
+            obj, act = a.values["object"], a.values["action"]
+        alarm = self.rule.check(self.cognition.step(obj, act), record.takeover is not None)
+        return None if alarm is None else f"{alarm.kind}: {alarm.reason}"
+
+
+def collect(cfg: CollectConfig) -> object:
+    """``vlaprobe collect``: with ``--takeover alarm``, the workers ask the cognition's alarm."""
+    from vlaprobe.collection.collect import collect as run
+    from vlaprobe.collection.worker import Worker
+
+    if cfg.intervention.takeover != "alarm":
+        return run(cfg)
+    return run(cfg, functools.partial(Worker, make_supervisor=CognitionSupervisor))

@@ -1,0 +1,49 @@
+"""The takeover settings shared by ``vlaprobe collect`` and ``vlaprobe serve`` (``--takeover``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+TakeoverMode = Literal["none", "alarm", "random"]
+"""Who hands the policy's control to the scripted expert: nobody, the cognition's alarm, or random times."""
+
+
+@dataclass
+class TakeoverConfig:
+    """When the scripted expert takes over from the policy (docs/failures.md#the-cognition-takes-over)."""
+
+    takeover: TakeoverMode = "none"
+    """"alarm": when the cognition's alarm fires, the scripted expert acts --takeover-steps actions, then the
+    policy again; "random": the same at random (seeded) rows, the control (collect: as many per episode as the
+    matching episode of --takeover-match had; serve: --takeover-count); "none": never. Needs --driver policy or
+    dagger."""
+    takeover_steps: int = 60
+    """Actions the expert executes per takeover (the episode may end first)."""
+    takeover_most: int = 3
+    """Most takeovers per episode."""
+    takeover_stall: int = 40
+    """The alarm fires when no subgoal has been done for this many steps (since the start, the last subgoal
+    done or the last hand-back)."""
+    takeover_hold: int = 5
+    """... or when a consistency rule's violation has held this many steps, or at once on a regression or a
+    dropped object (the cognition's events)."""
+    takeover_probes: Path | None = None
+    """collect --takeover alarm: the probe folder whose predictions the cognition reads; default: the
+    simulator's ground-truth atoms (serve always reads its --probes)."""
+    takeover_match: Path | None = None
+    """collect --takeover random: the store of the alarm run to match; each episode gets as many takeovers as
+    the episode of the same task and init state there, at random rows within its length."""
+    takeover_count: int = 1
+    """serve --takeover random: takeovers per episode, at random rows within --env.max-steps."""
+
+    def text(self) -> str:
+        """The settings that define a store's episodes ("" without takeovers)."""
+        if self.takeover == "none":
+            return ""
+        probes = "truth" if self.takeover_probes is None else str(self.takeover_probes)
+        alarm = f" stall={self.takeover_stall} hold={self.takeover_hold} atoms={probes}"
+        return f"{self.takeover} steps={self.takeover_steps} most={self.takeover_most}" + (
+            alarm if self.takeover == "alarm" else ""
+        )
