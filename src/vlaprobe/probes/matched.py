@@ -79,9 +79,7 @@ def pair_counts(
     return correct, pairs
 
 
-def matched_auc(
-    correct: np.ndarray, pairs: np.ndarray, weights: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def matched_auc(correct: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Point values (layers, atoms) and resamples (resamples, layers, atoms) of the AUC within cells, from
     :func:`pair_counts` and (resamples, groups) episode multiplicities; NaN where there is no pair."""
     layers, atoms, g, _ = correct.shape
