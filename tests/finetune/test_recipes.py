@@ -13,23 +13,24 @@ from vlaprobe.finetune.command import finetune
 RECIPE = Path(__file__).resolve().parents[2] / "recipes" / "tiny-libero-diverse.yaml"
 
 
-def test_the_diverse_recipe_trains_a_few_steps(small_model: Path, demo_store: Path, tmp_path: Path) -> None:
+def test_the_diverse_recipe_trains_a_few_steps(fast_cfg) -> None:
     recipe = _load_config_file(RECIPE, FinetuneConfig)
     assert recipe.model_id == "tiny-libero-diverse" and recipe.max_minutes is not None  # resumable budget
     assert 0 < recipe.val_fraction < 1  # held-out episodes: sampled layouts never trained on
     # Its settings, on the tests' small model and store, for a few steps (the shape and paths are the run's).
-    cfg = dataclasses.replace(
-        recipe,
-        stores=(demo_store,),
-        out=tmp_path / "run",
-        model=str(small_model),
-        max_steps=4,
-        eval_every=2,
-        warmup_steps=1,
-        val_fraction=0.25,
-        progress=False,
+    small = fast_cfg(max_steps=4, eval_every=2, warmup_steps=1)
+    test_only = (
+        "stores",
+        "out",
+        "model",
+        "max_steps",
+        "eval_every",
+        "warmup_steps",
+        "val_fraction",
+        "progress",
     )
+    cfg = dataclasses.replace(recipe, **{k: getattr(small, k) for k in test_only})
     assert finetune(cfg) == 0
-    lines = [json.loads(x) for x in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    lines = [json.loads(x) for x in (cfg.out / "metrics.jsonl").read_text().splitlines()]
     assert [x["step"] for x in lines] == [2, 4]  # validated every eval_every steps, on held-out episodes
     assert all(0 <= x["val_accuracy"] <= 1 for x in lines)
