@@ -14,7 +14,7 @@ from vlaprobe.probes import synthetic_data, train_on_data
 from vlaprobe.probes.bootstrap import nan_percentiles
 from vlaprobe.probes.evaluate import best_layer
 from vlaprobe.probes.metrics import summarize
-from vlaprobe.probes.results import EVALUATION_FILE, read_evaluation
+from vlaprobe.probes.results import EVALUATION_FILE, FORMAT_VERSION, READABLE_VERSIONS, read_evaluation
 from vlaprobe.probes.ties import describe, layer_resamples, paired_differences, ranges, tie_set
 
 
@@ -96,7 +96,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_evaluation_stores_the_tie_set(trained: Path) -> None:
     ev = read_evaluation(trained)
-    assert ev.format_version == 4
+    assert ev.format_version == FORMAT_VERSION
     for h in ev.heads.values():
         assert h.best.layer in h.best.tied and h.best.tied == sorted(h.best.tied)
         assert set(h.best.tied) <= set(ev.layers) and h.best.tie_rule
@@ -108,6 +108,7 @@ def test_a_version_3_evaluation_still_reads_with_the_best_layer_alone(trained: P
     for h in data["heads"].values():
         del h["best"]["tied"], h["best"]["tie_rule"]
         del h["conditional_task"], h["conditional_task_time"]
+        del h["families"], h["matched"], h["conditional_families"]
     (tmp_path / EVALUATION_FILE).write_text(json.dumps(data))
     ev = read_evaluation(tmp_path)
     for h in ev.heads.values():
@@ -116,7 +117,11 @@ def test_a_version_3_evaluation_still_reads_with_the_best_layer_alone(trained: P
 
 def test_a_newer_evaluation_is_refused_with_one_line(trained: Path, tmp_path: Path) -> None:
     data = json.loads((trained / EVALUATION_FILE).read_text())
-    data["format_version"] = 5
+    data["format_version"] = FORMAT_VERSION + 1
     (tmp_path / EVALUATION_FILE).write_text(json.dumps(data))
-    with pytest.raises(VlaprobeError, match=r"format version 5, this vlaprobe reads version\(s\) 3, 4"):
+    readable = ", ".join(map(str, READABLE_VERSIONS))
+    with pytest.raises(
+        VlaprobeError,
+        match=rf"format version {FORMAT_VERSION + 1}, this vlaprobe reads version\(s\) {readable}",
+    ):
         read_evaluation(tmp_path)

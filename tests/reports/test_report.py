@@ -18,6 +18,7 @@ from vlaprobe.configs.train import TrainConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import OWNER_FILE
 from vlaprobe.probes import synthetic_data, train_on_data
+from vlaprobe.probes.results import FORMAT_VERSION
 from vlaprobe.probes.ties import describe
 from vlaprobe.reports import write_report
 
@@ -199,7 +200,7 @@ def _provider(probes: Path) -> object:
 def test_page_shows_resamples_realized_split_and_control_spread(report: dict) -> None:
     text = report["page"].read_text()
     ev = report["ev"]
-    assert ev["format_version"] == 4 and ev["controls"]["shuffled_permutations"] == 5
+    assert ev["format_version"] == FORMAT_VERSION and ev["controls"]["shuffled_permutations"] == 5
     assert "resamples defining balanced accuracy" in text and "5 permutations" in text
     split = ev["split"]
     assert split["realized_test_fraction"] == pytest.approx(3 / 12) and split["test_fraction"] == 0.2

@@ -45,6 +45,13 @@ def time_bin(episode: np.ndarray, bins: int = TIME_BINS) -> np.ndarray:
     return np.minimum((normalised_time(episode) * bins).astype(np.int64), bins - 1)
 
 
+def task_time_cell(episode: np.ndarray, episode_tasks: np.ndarray, bins: int = TIME_BINS) -> np.ndarray:
+    """Per row: its task x time cell, task x ``bins`` + the bin of its normalised episode time (the cells of
+    the ``task_time`` baseline and of the matched-steps control)."""
+    task = np.asarray(episode_tasks)[np.asarray(episode)]
+    return task * bins + time_bin(episode, bins)
+
+
 def _cell_majority(
     labels: np.ndarray, cells: np.ndarray, test_cells: np.ndarray, fallback: np.ndarray
 ) -> np.ndarray:
@@ -72,10 +79,9 @@ def predict_baselines(
     """
     labels = np.asarray(labels, bool)
     task = np.asarray(episode_tasks)[np.asarray(episode)]
-    when = time_bin(episode, bins)
     train_y = labels[train_rows]
     majority = np.broadcast_to(train_y.mean(0) >= 0.5, (len(test_rows), labels.shape[1])).copy()
     by_task = _cell_majority(train_y, task[train_rows], task[test_rows], majority)
-    cell = task * bins + when
+    cell = task_time_cell(episode, episode_tasks, bins)
     by_time = _cell_majority(train_y, cell[train_rows], cell[test_rows], by_task)
     return {"majority": majority, "task": by_task, "task_time": by_time}

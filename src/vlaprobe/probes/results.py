@@ -12,7 +12,9 @@ latter (``selectivity_task_time``); how each probe was fit (``fit``: C per layer
 iterations, final loss and gradient norm per probe); averages keep a fixed set of atoms in every resample.
 Version 4: the layers tied with the best one (``BestLayer.tied``; a version-3 file reads with the best layer
 alone) and conditional probing over the task and task x time baselines (``conditional_task``,
-``conditional_task_time``; absent from older files).
+``conditional_task_time``; absent from older files). Version 5: the atom families (``families``), the
+matched-steps control (``matched``: a within-cell AUC per atom, family and layer, against the observer
+control) and the conditional gain per family (``conditional_families``); absent (empty) in older files.
 """
 
 from __future__ import annotations
@@ -30,8 +32,8 @@ from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import Json, JsonObject, from_json, read_versioned, write_atomic
 
 FORMAT = "vlaprobe-evaluation"
-FORMAT_VERSION = 4
-READABLE_VERSIONS = (3, 4)
+FORMAT_VERSION = 5
+READABLE_VERSIONS = (3, 4, 5)
 """Format versions :func:`read_evaluation` accepts (older ones gain the new fields' defaults)."""
 EVALUATION_FILE = "evaluation.json"
 CONFIG_FILE = "config.json"
@@ -125,6 +127,31 @@ class ConditionalProbe:
     """C of the baseline-features probe (the last fold's)."""
     c: Nested
     """(layers,) C of the combined probes (the last fold's)."""
+
+
+@dataclass
+class MatchedPairs:
+    """The matched-steps control (:mod:`vlaprobe.probes.matched`): per atom, among pairs of held-out steps in
+    the same task x time cell with different values of the atom, the share the probe's logit ranks correctly
+    (ties 0.5), an AUC within cells; 0.5 is chance. Undefined (None) for atoms without such a pair."""
+
+    metric: str
+    cells: str
+    """The rule that makes the pairs."""
+    pairs: Nested
+    """(atoms,) matched pairs per atom (the same at every layer)."""
+    probe: MetricSummary
+    """Per atom, per predicate and per layer (mean over the atoms with pairs)."""
+    family: Level
+    """(layers, families) the mean over each family's atoms (:attr:`HeadResult.families` order)."""
+    observer: MetricSummary | None = None
+    """The same statistic of the probes on the observer control's hidden states."""
+    observer_family: Level | None = None
+    difference: MetricSummary | None = None
+    """Probe minus observer, per resample (paired when the observer saw the same episodes)."""
+    difference_family: Level | None = None
+    paired: bool = False
+    """The difference's resamples draw the same test episodes for both observers."""
 
 
 @dataclass
@@ -231,6 +258,12 @@ class HeadResult:
     """Conditional probing over the task baseline (None when not computed)."""
     conditional_task_time: ConditionalProbe | None = None
     """Conditional probing over the task x time baseline (None when not computed)."""
+    families: dict[str, list[str]] = field(default_factory=dict)
+    """Atom family (:mod:`vlaprobe.probes.families`) -> its probed atoms, for the per-family figures."""
+    matched: MatchedPairs | None = None
+    """The matched-steps control (None in files before version 5)."""
+    conditional_families: dict[str, Level] = field(default_factory=dict)
+    """Baseline -> (layers, families) the conditional gain per family (:attr:`families` order)."""
 
     def conditional(self) -> dict[str, ConditionalProbe]:
         """Baseline name -> its conditional probing, for the baselines this run has."""

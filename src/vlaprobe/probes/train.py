@@ -31,6 +31,7 @@ from vlaprobe.probes.bootstrap import bootstrap_weights
 from vlaprobe.probes.conditional import conditional_fit
 from vlaprobe.probes.data import ProbeData, load_store
 from vlaprobe.probes.evaluate import CrossFit, column_groups, cross_fit, evaluate_head
+from vlaprobe.probes.matched import Scored, add_within_cells
 from vlaprobe.probes.outfolder import check_free_space, check_probe_folder, locked, replace_folder
 from vlaprobe.probes.probeset import ProbeSet
 from vlaprobe.probes.record import config_dict, evaluation_record, probe_meta
@@ -137,12 +138,14 @@ def train_on_data(
         for h in heads
     }
     _warn_c_at_edge({h: r.fit for h, r in head_results.items()})
-    observer_info = None
+    observer_info, observed = None, None
     if observer is not None:
         log.info("observer control: %s", observer.model_id)
-        observer_info = _observer(
+        observer_info, observed = _observer(
             observer, data, heads, filters, folds, cfg, seeds, weights, threshold_logit, head_results
         )
+    main = Scored(data, fitted, targets, weights[: cfg.bootstrap])
+    add_within_cells(head_results, main, columns, threshold_logit, observed)  # 4b. matched steps, families
     # 5. Save: probes (JSON last: it marks a complete folder), evaluation, config.
     meta = probe_meta(data, cfg, seeds, heads, filters, head_results, len(folds) > 1)
     evaluation = evaluation_record(data, cfg, seeds, folds, fold_rows, fitted, head_results, observer_info)
@@ -335,8 +338,9 @@ def _observer(
     weights: np.ndarray,
     threshold_logit: float,
     head_results: dict[str, HeadResult],
-) -> ObserverInfo:
-    """Train and evaluate the same atoms on a second observer's hidden states; sets each head's ``observer``."""
+) -> tuple[ObserverInfo, Scored]:
+    """Train and evaluate the same atoms on a second observer's hidden states; sets each head's ``observer``
+    and returns the observer's held-out scores too."""
     for h in heads:
         if observer.atom_names.get(h) != data.atom_names[h]:
             raise VlaprobeError(
@@ -364,7 +368,7 @@ def _observer(
         _warn_c_at_edge({f"{h} (observer {observer.model_id})": r.fit})
         head_results[h].observer = r.probe
         head_results[h].observer_best = r.best
-    return ObserverInfo(
+    info = ObserverInfo(
         model_id=observer.model_id,
         pooling=observer.pooling,
         layers=list(observer.layers),
@@ -372,3 +376,4 @@ def _observer(
         steps=observer.num_steps,
         episodes=len(observer.episode_keys),
     )
+    return info, Scored(observer, fitted, targets, obs_weights[: cfg.bootstrap])

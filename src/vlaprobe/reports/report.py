@@ -9,6 +9,7 @@ Everything comes from the probe folder's ``evaluation.json`` (no recomputation).
   bootstrap bands, next to the majority baseline, the shuffled-label control and the observer control;
 - ``tables.json``: the tables of the page (per-predicate figures at the best layer and the layers tied with it,
   dropped atoms); ``conditional.json``: the conditional-probing section's per-layer gains, when computed;
+  ``matched.json``: the matched-steps section's figures per atom family, when computed;
 - ``index.html``: a self-contained page (figures embedded as base64 PNG) with the split, dataset size,
   dropped atoms, baselines and every plot, rendered from the Jinja2 templates in ``templates/``. Written last.
 
@@ -33,6 +34,7 @@ from vlaprobe.probes.results import PARTS, Evaluation, HeadResult, arr, read_eva
 from vlaprobe.probes.ties import describe
 from vlaprobe.reports.conditional import conditional_headline, conditional_section
 from vlaprobe.reports.figures import Rendered, Series, TieMarks, curves, heatmap, metric_label
+from vlaprobe.reports.matched import matched_section
 from vlaprobe.reports.page import Figure, render_page
 from vlaprobe.reports.sections import Section, find_sections
 from vlaprobe.symbols.vocabulary import ACTION_PREDICATES
@@ -59,7 +61,10 @@ def write_report(cfg: ReportConfig, sections: Sequence[Section] = ()) -> Path:
     conditional = conditional_section(evaluation)
     if conditional is not None:
         write_atomic(out / "conditional.json", json.dumps(conditional.data, indent=1) + "\n")
-    extra = [*([conditional] if conditional else []), *sections, *find_sections(Path(cfg.probes))]
+    matched = matched_section(evaluation)
+    if matched is not None:
+        write_atomic(out / "matched.json", json.dumps(matched.data, indent=1) + "\n")
+    extra = [*(s for s in (conditional, matched) if s), *sections, *find_sections(Path(cfg.probes))]
     page = out / REPORT_FILE
     write_atomic(page, render_page(title, evaluation, tables, figures, extra))
     return page
