@@ -22,6 +22,7 @@ import clingo.ast
 import numpy as np
 
 from vlaprobe.cognition.budget import check_budget, check_grounding, read_rules_text, solve_within
+from vlaprobe.cognition.plan import TaskGoal
 from vlaprobe.cognition.terms import canonical_name, diarc_name, diarc_term
 from vlaprobe.configs.monitor import RuleBudget
 from vlaprobe.errors import VlaprobeError
@@ -53,7 +54,7 @@ class RuleHit:
     """Canonical spelling of the beliefs involved."""
 
 
-def _types(atoms: Sequence[str], goal: Goal) -> list[str]:
+def _types(atoms: Sequence[str], goal: Goal | TaskGoal) -> list[str]:
     """Facts of the task and the object types, read off the vocabulary's atoms."""
     objects: set[str] = set()
     pick: set[str] = set()
@@ -66,7 +67,9 @@ def _types(atoms: Sequence[str], goal: Goal) -> list[str]:
             drawers.add(args[-1])
         elif pred not in ("grasped", "turned-on"):
             objects.update(args)
-    facts = [f"goal({goal.pick},{goal.place})."]
+    pick_place = goal.pick_place if isinstance(goal, TaskGoal) else goal
+    # goal(X, Y): the pick-and-place the directive follows; other goals have no directive (labeler)
+    facts = [] if pick_place is None else [f"goal({pick_place.pick},{pick_place.place})."]
     facts += [f"object({o})." for o in sorted(objects)]
     facts += [f"pickupable({o})." for o in sorted(pick)]
     facts += [f"container({c})." for c in sorted(drawers)]
@@ -145,7 +148,7 @@ class RuleEngine:
     def __init__(
         self,
         atoms: Sequence[str],
-        goal: Goal,
+        goal: Goal | TaskGoal,
         rules: Sequence[str | Path] = (),
         shipped: bool = True,
         recent_steps: int = 10,
