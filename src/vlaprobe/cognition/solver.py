@@ -29,6 +29,11 @@ from vlaprobe.errors import VlaprobeError
 from vlaprobe.symbols.vocabulary import PREDICATES, parse_atom
 from vlaprobe.symbols.world import Goal
 
+ARITY = {
+    p: 1 if p in ("on-table", "open", "turned-on", "grasped", "should-move-towards") else 2
+    for p in PREDICATES
+}
+"""Arity of each belief predicate."""
 TEMPORAL = ("prev", "ever", "recent")
 """Past-time operators over one belief: held at the previous step, at some step so far, in the last W steps."""
 TYPES = {"goal": 2, "object": 1, "pickupable": 1, "container": 1}
@@ -63,9 +68,9 @@ def _types(atoms: Sequence[str], goal: Goal | TaskGoal) -> list[str]:
         pred, args = parse_atom(a)
         if pred in ("grasped", "on", "inside"):
             pick.add(args[0])
-        if pred in ("open", "inside"):
+        if pred == "open":
             drawers.add(args[-1])
-        elif pred not in ("grasped", "turned-on"):
+        elif pred not in ("grasped", "turned-on", "inside"):
             objects.update(args)
     pick_place = goal.pick_place if isinstance(goal, TaskGoal) else goal
     # goal(X, Y): the pick-and-place the directive follows; other goals have no directive (labeler)
@@ -182,6 +187,9 @@ class RuleEngine:
             for op in TEMPORAL
         }
         known = {(diarc_name(p), len(args)) for p, args in parsed}
+        known |= {
+            (diarc_name(p), ARITY[p]) for p in PREDICATES
+        }  # a scene may lack some (no drawer, no stove)
         known |= {(p, 1) for p in TEMPORAL} | set(TYPES.items()) | set(RESULTS.items())
         self.type_facts: tuple[str, ...] = tuple(_types(self.atoms, goal))
         """The task and type facts (``goal(p,q).``, ``pickupable(o).`` ...) the rules see besides the beliefs."""

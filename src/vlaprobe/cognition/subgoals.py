@@ -18,7 +18,9 @@ beliefs have supported a lower level for ``regression_steps`` consecutive steps,
 *regressed* (undone; to be done again) and a ``regression`` event is raised, with "dropped" when X was grasped
 and is now neither grasped nor on Y. The wait is needed because a placing hand lets go above the place: the
 scripted expert opens the gripper 2-3 steps before X rests on Y. With no new subgoal done for ``stall_steps``
-steps before the goal, one ``stalled`` event (again after progress).
+steps before the goal, one ``stalled`` event (again after progress). For goals other than one pick-and-place
+the labeler leaves ``should-move-towards`` undefined (all false): a towards subgoal is then done with the subgoal
+after it, and the relation counts once X has been grasped at any time of the episode.
 """
 
 from __future__ import annotations
@@ -63,8 +65,8 @@ class Event:
 class _Place:
     """Support of a place conjunct's four subgoals (module doc)."""
 
-    def __init__(self, part: ConjunctSubgoals, index: Mapping[str, int]) -> None:
-        self.part, self.n = part, 4
+    def __init__(self, part: ConjunctSubgoals, index: Mapping[str, int], directed: bool) -> None:
+        self.part, self.n, self.directed = part, 4, directed
         self._i = tuple(index[a] for a in part.atoms)
         self.reset()
 
@@ -93,14 +95,14 @@ class _Place:
     def regressed(self, new: int) -> None:
         if new == 0:
             self._seen_towards[0] = False
-        if new < 2:
+        if new < 2 and self.directed:  # without the directive a release cannot be told from a drop
             self._seen_grasp = False
 
 
 class _Switch:
     """Support of a switch conjunct's two subgoals (module doc)."""
 
-    def __init__(self, part: ConjunctSubgoals, index: Mapping[str, int]) -> None:
+    def __init__(self, part: ConjunctSubgoals, index: Mapping[str, int], directed: bool) -> None:
         self.part, self.n = part, 2
         self._i = tuple(index[a] for a in part.atoms)
         self.reset()
@@ -137,7 +139,8 @@ class SubgoalTracker:
             raise VlaprobeError(
                 f"stall_steps and regression_steps must be at least 1, got {stall_steps} and {regression_steps}"
             )
-        self._parts = [(_Place if p.kind == "place" else _Switch)(p, index) for p in parts]
+        directed = self.goal.pick_place is not None  # the labeler defines should-move-towards for this goal
+        self._parts = [(_Place if p.kind == "place" else _Switch)(p, index, directed) for p in parts]
         self.names = tuple(n for p in parts for n in p.names)
         self._offsets = np.cumsum([0] + [p.n for p in self._parts]).tolist()
         self.total = len(self.names)
