@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from tests.cognition.test_libero_episodes import expert_rows
 from tests.envs.test_libero_suites import sweep_cases
 
 from vlaprobe.cognition import Cognition, CognitionConfig
@@ -36,14 +37,7 @@ def test_rules_hold_and_the_goal_is_tracked_on_expert_episodes(suite: SuiteName,
             expert = ScriptedExpert(env, seed=0)
         except VlaprobeError as exc:
             pytest.skip(str(exc))
-        env.reset(0)
-        expert.reset()
-        rows, success_step = [env.labeler(env.world_state())], None
-        while len(rows) <= MAX_STEPS and (success_step is None or len(rows) <= success_step + POST):
-            obs = env.step(expert.act())
-            rows.append(env.labeler(env.world_state()))
-            if obs.success and success_step is None:
-                success_step = len(rows) - 1
+        rows, success_step = expert_rows(env, expert, POST, MAX_STEPS)
         goal = task_goal(env.goal_conjunction, env.scene)
         vocab = env.labeler.vocabulary
     obj, act = np.array([o for o, _ in rows]), np.array([a for _, a in rows])
