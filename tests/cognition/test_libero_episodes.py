@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import shutil
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pytest
@@ -33,6 +34,20 @@ class Episode:
     success_step: int | None
 
 
+def expert_rows(env: Any, expert: Any, post: int, max_steps: int) -> tuple[list, int | None]:
+    """The labeler's (object, action) rows of an expert episode from init 0, going on ``post`` steps after LIBERO's
+    success (at most ``max_steps``), and the first row of success (None: none)."""
+    env.reset(0)
+    expert.reset()
+    rows, success_step = [env.labeler(env.world_state())], None
+    while len(rows) <= max_steps and (success_step is None or len(rows) <= success_step + post):
+        obs = env.step(expert.act())
+        rows.append(env.labeler(env.world_state()))
+        if obs.success and success_step is None:
+            success_step = len(rows) - 1
+    return rows, success_step
+
+
 @pytest.fixture(scope="module")
 def episodes() -> list[Episode]:
     from vlaprobe.configs.env import EnvConfig
@@ -42,15 +57,7 @@ def episodes() -> list[Episode]:
     out = []
     for task in range(10):
         with LiberoTaskEnv(task, EnvConfig(render=False)) as env:
-            expert = ScriptedExpert(env, seed=0)
-            obs = env.reset(0)
-            expert.reset()
-            rows, success_step = [env.labeler(env.world_state())], None
-            while len(rows) <= MAX_STEPS and (success_step is None or len(rows) <= success_step + POST):
-                obs = env.step(expert.act())
-                rows.append(env.labeler(env.world_state()))
-                if obs.success and success_step is None:
-                    success_step = len(rows) - 1
+            rows, success_step = expert_rows(env, ScriptedExpert(env, seed=0), POST, MAX_STEPS)
             vocab = env.labeler.vocabulary
             out.append(
                 Episode(

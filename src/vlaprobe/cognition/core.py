@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vlaprobe.cognition.beliefs import BeliefStore
+from vlaprobe.cognition.plan import TaskGoal
 from vlaprobe.cognition.solver import RuleEngine, RuleHit
 from vlaprobe.cognition.subgoals import Event, SubgoalState, SubgoalTracker
 from vlaprobe.configs.monitor import CognitionConfig
@@ -51,7 +52,7 @@ class CognitionStep:
     violations: tuple[Violation, ...]
     """Every violation that holds now."""
     subgoals: tuple[SubgoalState, ...]
-    """The four subgoals' states."""
+    """Every subgoal's state (four per pick-and-place conjunct, two per switch; ``vlaprobe.cognition.plan``)."""
     progress: float
     """Share of subgoals done, 0..1."""
     events: tuple[Event, ...]
@@ -67,7 +68,7 @@ class Cognition:
         self,
         object_atoms: Sequence[str],
         action_atoms: Sequence[str],
-        goal: Goal,
+        goal: Goal | TaskGoal,
         config: CognitionConfig | None = None,
         probed: Mapping[str, np.ndarray] | None = None,
     ) -> None:
@@ -75,7 +76,7 @@ class Cognition:
         self.object_atoms = tuple(object_atoms)
         self.action_atoms = tuple(action_atoms)
         self.atoms = self.object_atoms + self.action_atoms
-        self.goal = goal
+        self.goal = goal if isinstance(goal, TaskGoal) else TaskGoal.of(goal)
         fixed = None
         if probed is not None:
             masks = []
@@ -136,7 +137,7 @@ class Cognition:
             subgoals=self.subgoals.states(),
             progress=self.subgoals.progress,
             events=tuple(events),
-            goal_reached=self.subgoals.level == 4,
+            goal_reached=self.subgoals.done,
         )
 
     def _track(self, t: int, hits: list[RuleHit]) -> tuple[Violation, ...]:

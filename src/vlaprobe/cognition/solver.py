@@ -22,12 +22,18 @@ import clingo.ast
 import numpy as np
 
 from vlaprobe.cognition.budget import check_budget, check_grounding, read_rules_text, solve_within
+from vlaprobe.cognition.plan import TaskGoal
 from vlaprobe.cognition.terms import canonical_name, diarc_name, diarc_term
 from vlaprobe.configs.monitor import RuleBudget
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.symbols.vocabulary import PREDICATES, parse_atom
 from vlaprobe.symbols.world import Goal
 
+ARITY = {
+    p: 1 if p in ("on-table", "open", "turned-on", "grasped", "should-move-towards") else 2
+    for p in PREDICATES
+}
+"""Arity of each belief predicate."""
 TEMPORAL = ("prev", "ever", "recent")
 """Past-time operators over one belief: held at the previous step, at some step so far, in the last W steps."""
 TYPES = {"goal": 2, "object": 1, "pickupable": 1, "container": 1}
@@ -53,7 +59,7 @@ class RuleHit:
     """Canonical spelling of the beliefs involved."""
 
 
-def _types(atoms: Sequence[str], goal: Goal) -> list[str]:
+def _types(atoms: Sequence[str], goal: Goal | TaskGoal) -> list[str]:
     """Facts of the task and the object types, read off the vocabulary's atoms."""
     objects: set[str] = set()
     pick: set[str] = set()
@@ -62,11 +68,13 @@ def _types(atoms: Sequence[str], goal: Goal) -> list[str]:
         pred, args = parse_atom(a)
         if pred in ("grasped", "on", "inside"):
             pick.add(args[0])
-        if pred in ("open", "inside"):
+        if pred == "open":
             drawers.add(args[-1])
-        elif pred not in ("grasped", "turned-on"):
+        elif pred not in ("grasped", "turned-on", "inside"):
             objects.update(args)
-    facts = [f"goal({goal.pick},{goal.place})."]
+    pick_place = goal.pick_place if isinstance(goal, TaskGoal) else goal
+    # goal(X, Y): the pick-and-place the directive follows; other goals have no directive (labeler)
+    facts = [] if pick_place is None else [f"goal({pick_place.pick},{pick_place.place})."]
     facts += [f"object({o})." for o in sorted(objects)]
     facts += [f"pickupable({o})." for o in sorted(pick)]
     facts += [f"container({c})." for c in sorted(drawers)]
@@ -145,7 +153,7 @@ class RuleEngine:
     def __init__(
         self,
         atoms: Sequence[str],
-        goal: Goal,
+        goal: Goal | TaskGoal,
         rules: Sequence[str | Path] = (),
         shipped: bool = True,
         recent_steps: int = 10,
@@ -179,6 +187,9 @@ class RuleEngine:
             for op in TEMPORAL
         }
         known = {(diarc_name(p), len(args)) for p, args in parsed}
+        known |= {
+            (diarc_name(p), ARITY[p]) for p in PREDICATES
+        }  # a scene may lack some (no drawer, no stove)
         known |= {(p, 1) for p in TEMPORAL} | set(TYPES.items()) | set(RESULTS.items())
         self.type_facts: tuple[str, ...] = tuple(_types(self.atoms, goal))
         """The task and type facts (``goal(p,q).``, ``pickupable(o).`` ...) the rules see besides the beliefs."""

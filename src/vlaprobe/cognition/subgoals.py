@@ -1,11 +1,14 @@
-"""Goal and subgoals of a pick-and-place task, tracked over the beliefs of each step.
+"""Goal and subgoals of a task, tracked over the beliefs of each step.
 
-From the task's goal ``On(X, Y)`` alone (nothing written per task), four subgoals in order:
+The goal's conjuncts, in the expert's order, each with its subgoals (:mod:`vlaprobe.cognition.plan`); a conjunct's
+subgoals count once those of the conjuncts before it are all done. A ``switch`` conjunct (Open, Close, TurnOn,
+TurnOff) has two: ``should-move-towards(D)``, done once believed and ended (or once the articulation holds), then
+the articulation. A ``place`` conjunct (``On(X, Y)``, ``In(X, Y)``) has four:
 
 1. ``should-move-towards(X)``: done once that directive has been believed and has ended, or X is grasped;
 2. ``grasped(X)``: done while X is grasped (or placed);
 3. ``should-move-towards(Y)``: done once that directive has ended while X is still grasped, or X is on Y;
-4. ``on(X,Y)``: the goal; done while it holds after X was grasped and is no longer grasped (an ``on``
+4. ``on(X,Y)`` (``inside(X,Y)``): the relation; done while it holds after X was grasped and is no longer grasped (an ``on``
    believed during the carry, or before any grasp, is not the goal: the rules report the first as
    ``on_while_grasped``).
 
@@ -15,7 +18,9 @@ beliefs have supported a lower level for ``regression_steps`` consecutive steps,
 *regressed* (undone; to be done again) and a ``regression`` event is raised, with "dropped" when X was grasped
 and is now neither grasped nor on Y. The wait is needed because a placing hand lets go above the place: the
 scripted expert opens the gripper 2-3 steps before X rests on Y. With no new subgoal done for ``stall_steps``
-steps before the goal, one ``stalled`` event (again after progress).
+steps before the goal, one ``stalled`` event (again after progress). For goals other than one pick-and-place
+the labeler leaves ``should-move-towards`` undefined (all false): a towards subgoal is then done with the subgoal
+after it, and the relation counts once X has been grasped at any time of the episode.
 """
 
 from __future__ import annotations
@@ -26,8 +31,8 @@ from typing import Literal
 
 import numpy as np
 
+from vlaprobe.cognition.plan import ConjunctSubgoals, TaskGoal, check_readable, conjunct_subgoals
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.symbols.vocabulary import atom
 from vlaprobe.symbols.world import Goal
 
 Status = Literal["pending", "active", "done", "regressed"]
@@ -39,7 +44,7 @@ class SubgoalState:
     """One subgoal's status at one step."""
 
     index: int
-    """1..4, in the order the subgoals must be done."""
+    """1..N, in the order the subgoals must be done."""
     name: str
     """The belief that marks it, e.g. ``"should-move-towards(akita_black_bowl_1)"``."""
     status: Status
@@ -57,62 +62,117 @@ class Event:
     """One line for people."""
 
 
-class SubgoalTracker:
-    """Level of a pick-and-place task's subgoals from the beliefs of each step."""
+class _Place:
+    """Support of a place conjunct's four subgoals (module doc)."""
 
-    def __init__(
-        self, index: Mapping[str, int], goal: Goal, stall_steps: int = 150, regression_steps: int = 8
-    ) -> None:
-        x, y = goal.pick, goal.place
-        self.names = (
-            atom("should-move-towards", x),
-            atom("grasped", x),
-            atom("should-move-towards", y),
-            atom("on", x, y),
-        )
-        missing = [n for n in self.names if n not in index]
-        if missing:
-            raise VlaprobeError(
-                f"the goal {atom('on', x, y)} needs the atom {missing[0]!r}, which is not among the atoms "
-                "given; pass the task's full object and action atoms"
-            )
-        if stall_steps < 1 or regression_steps < 1:
-            raise VlaprobeError(
-                f"stall_steps and regression_steps must be at least 1, got {stall_steps} and {regression_steps}"
-            )
-        self.goal = goal
-        self.stall_steps = int(stall_steps)
-        self.regression_steps = int(regression_steps)
-        self._i = tuple(index[n] for n in self.names)
+    def __init__(self, part: ConjunctSubgoals, index: Mapping[str, int], directed: bool) -> None:
+        self.part, self.n, self.directed = part, 4, directed
+        self._i = tuple(index[a] for a in part.atoms)
         self.reset()
 
     def reset(self) -> None:
-        self.level = 0
-        self._regressed = [False] * 4
         self._seen_towards = [False, False]  # directive believed since its subgoal became the next to do
         self._seen_grasp = False  # X grasped since the start (or since a regression below subgoal 2)
-        self._last_progress = 0
-        self._below = 0  # consecutive steps the beliefs have supported less than the level
-        self._stalled = False
-        self._states: tuple[SubgoalState, ...] | None = None
 
-    def _support(self, b: np.ndarray) -> int:
-        """Highest level the current beliefs (and the directives seen) support."""
+    def support(self, b: np.ndarray, level: int) -> int:
+        """Highest level the current beliefs (and the directives seen) support; ``level``: the one reached."""
         towards_x, grasped, towards_y, on = (bool(b[i]) for i in self._i)
         if grasped:
             self._seen_grasp = True
         elif on and self._seen_grasp:
             return 4
         if grasped:
-            if self.level >= 2 and towards_y:
+            if level >= 2 and towards_y:
                 self._seen_towards[1] = True
             return 3 if self._seen_towards[1] and not towards_y else 2
-        if towards_y and self.level >= 2:
-            return self.level  # let go, still on its way to Y (settling on it, or falling)
+        if towards_y and level >= 2:
+            return level  # let go, still on its way to Y (settling on it, or falling)
         self._seen_towards[1] = False
         if towards_x:
             self._seen_towards[0] = True
         return 1 if self._seen_towards[0] and not towards_x else 0
+
+    def regressed(self, new: int) -> None:
+        if new == 0:
+            self._seen_towards[0] = False
+        if new < 2 and self.directed:  # without the directive a release cannot be told from a drop
+            self._seen_grasp = False
+
+
+class _Switch:
+    """Support of a switch conjunct's two subgoals (module doc)."""
+
+    def __init__(self, part: ConjunctSubgoals, index: Mapping[str, int], directed: bool) -> None:
+        self.part, self.n = part, 2
+        self._i = tuple(index[a] for a in part.atoms)
+        self.reset()
+
+    def reset(self) -> None:
+        self._seen = False
+
+    def support(self, b: np.ndarray, level: int) -> int:
+        towards, value = (bool(b[i]) for i in self._i)
+        if value != self.part.negated:
+            return 2
+        self._seen |= towards
+        return 1 if self._seen and not towards else 0
+
+    def regressed(self, new: int) -> None:
+        if new == 0:
+            self._seen = False
+
+
+class SubgoalTracker:
+    """Level of a task's subgoals from the beliefs of each step."""
+
+    def __init__(
+        self,
+        index: Mapping[str, int],
+        goal: Goal | TaskGoal,
+        stall_steps: int = 150,
+        regression_steps: int = 8,
+    ) -> None:
+        self.goal = goal if isinstance(goal, TaskGoal) else TaskGoal.of(goal)
+        parts = tuple(conjunct_subgoals(c, self.goal) for c in self.goal.conjuncts)
+        check_readable(parts, dict(index))
+        if stall_steps < 1 or regression_steps < 1:
+            raise VlaprobeError(
+                f"stall_steps and regression_steps must be at least 1, got {stall_steps} and {regression_steps}"
+            )
+        directed = self.goal.pick_place is not None  # the labeler defines should-move-towards for this goal
+        self._parts = [(_Place if p.kind == "place" else _Switch)(p, index, directed) for p in parts]
+        self.names = tuple(n for p in parts for n in p.names)
+        self._offsets = np.cumsum([0] + [p.n for p in self._parts]).tolist()
+        self.total = len(self.names)
+        self._relations = " & ".join(p.names[-1] for p in parts)
+        self.stall_steps = int(stall_steps)
+        self.regression_steps = int(regression_steps)
+        self.reset()
+
+    def reset(self) -> None:
+        self.level = 0
+        self._regressed = [False] * self.total
+        for part in self._parts:
+            part.reset()
+        self._last_progress = 0
+        self._below = 0  # consecutive steps the beliefs have supported less than the level
+        self._stalled = False
+        self._states: tuple[SubgoalState, ...] | None = None
+
+    def _own(self, k: int, level: int) -> int:
+        """Conjunct ``k``'s share of an overall ``level``."""
+        return min(max(level - self._offsets[k], 0), self._parts[k].n)
+
+    def _support(self, b: np.ndarray) -> int:
+        """Highest overall level the beliefs support: the conjuncts' own levels, each counted once those before
+        it are done (every conjunct's support is updated at every step: it remembers what it saw)."""
+        own = [p.support(b, self._own(k, self.level)) for k, p in enumerate(self._parts)]
+        level = 0
+        for part, s in zip(self._parts, own, strict=True):
+            level += s
+            if s < part.n:
+                break
+        return level
 
     def update(self, t: int, beliefs: np.ndarray) -> list[Event]:
         """Advance to step ``t``; the events of this step, in order."""
@@ -121,13 +181,12 @@ class SubgoalTracker:
         if new < old and self._below < self.regression_steps:
             new = old  # not (yet) a regression: wait whether it lasts
         events: list[Event] = []
-        x, y = self.goal.pick, self.goal.place
         if new > old:
             for k in range(old, new):
                 self._regressed[k] = False
                 events.append(Event("subgoal_done", t, f"subgoal {k + 1} done: {self.names[k]}"))
-            if new == 4:
-                events.append(Event("goal_reached", t, f"goal reached: {self.names[3]}"))
+            if new == self.total:
+                events.append(Event("goal_reached", t, f"goal reached: {self._relations}"))
             self._last_progress, self._stalled = t, False
         elif new < old:
             self._below = 0
@@ -135,16 +194,17 @@ class SubgoalTracker:
                 self._regressed[k] = True
             undone = ", ".join(self.names[new:old])
             events.append(Event("regression", t, f"regression: {undone} no longer done"))
-            if old in (2, 3) and new < 2:
-                events.append(
-                    Event("dropped", t, f"dropped: {x} was grasped, is now neither grasped nor on {y}")
-                )
-            if new == 0:
-                self._seen_towards[0] = False
-            if new < 2:
-                self._seen_grasp = False
+            for k, part in enumerate(self._parts):
+                was, now = self._own(k, old), self._own(k, new)
+                if now < was:
+                    part.regressed(now)
+                if isinstance(part, _Place) and was in (2, 3) and now < 2:
+                    x, y = part.part.conjunct.args
+                    rel = "on" if part.part.conjunct.predicate == "On" else "inside"
+                    message = f"dropped: {x} was grasped, is now neither grasped nor {rel} {y}"
+                    events.append(Event("dropped", t, message))
             self._last_progress, self._stalled = t, False
-        elif new < 4 and not self._stalled and t - self._last_progress >= self.stall_steps:
+        elif new < self.total and not self._stalled and t - self._last_progress >= self.stall_steps:
             self._stalled = True
             events.append(
                 Event("stalled", t, f"stalled: no subgoal done for {t - self._last_progress} steps")
@@ -155,13 +215,18 @@ class SubgoalTracker:
         return events
 
     @property
+    def done(self) -> bool:
+        """Whether every subgoal is done (the goal holds)."""
+        return self.level == self.total
+
+    @property
     def active(self) -> int:
-        """Index (1..4) of the next subgoal to do; 5 once all are done."""
+        """Index (1..N) of the next subgoal to do; N + 1 once all are done."""
         return self.level + 1
 
     @property
     def progress(self) -> float:
-        return self.level / 4
+        return self.level / self.total
 
     def states(self) -> tuple[SubgoalState, ...]:
         if self._states is None:

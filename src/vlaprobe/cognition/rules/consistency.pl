@@ -11,7 +11,7 @@
 
 % --- support ---------------------------------------------------------------------------------------------
 message(on_and_inside, "an object is both on something and inside a drawer").
-violation(on_and_inside, (on(X,Y), inside(X,C))) :- on(X,Y), inside(X,C).
+violation(on_and_inside, (on(X,Y), inside(X,C))) :- on(X,Y), inside(X,C), container(C).
 
 message(on_two_supports, "an object is on two things at once").
 violation(on_two_supports, (on(X,Y), on(X,Z))) :- on(X,Y), on(X,Z), Y @< Z.
@@ -75,6 +75,6 @@ violation(placed_without_grasp, (on(X,Y), grasped(X))) :-
 
 message(inside_changed_closed, "an object went into or out of a drawer that was not open recently").
 violation(inside_changed_closed, (inside(X,C), open(C))) :-
-    inside(X, C), not(prev(inside(X, C))), not(recent(open(C))).
+    inside(X, C), container(C), not(prev(inside(X, C))), not(recent(open(C))).
 violation(inside_changed_closed, (inside(X,C), open(C))) :-
-    prev(inside(X, C)), not(inside(X, C)), not(recent(open(C))).
+    prev(inside(X, C)), container(C), not(inside(X, C)), not(recent(open(C))).
