@@ -92,3 +92,33 @@ def test_an_unseen_cell_falls_back_to_the_task_then_to_all() -> None:
     back = np.argsort(order[new_test])  # test rows of the interleaved run, in the original order
     for name in BASELINES:
         np.testing.assert_array_equal(again[name][back], pred[name])
+
+
+def test_time_predicts_each_deciles_majority_over_all_tasks_on_an_unseen_task() -> None:
+    # held-out task (leave-one-task-out): tasks 0 and 1 train (10 steps each, one row per decile), task 2 tests.
+    # The atom is true from decile 6 on in task 0 and from decile 3 on in task 1: deciles 0-2 false in both,
+    # 3-5 true in one of two (a tie: true), 6-9 true in both. The task baselines only know the unseen task's
+    # fallback, the overall majority (13 of 20 true: true everywhere).
+    length = 10
+    tasks = np.array([0, 1, 2])
+    episode = np.repeat(np.arange(3), length)
+    step = np.arange(length)
+    labels = np.concatenate([step >= 6, step >= 3, np.zeros(length, bool)])[:, None]
+    train, test = np.arange(2 * length), np.arange(2 * length, 3 * length)
+    pred = predict_baselines(labels, episode, tasks, train, test)
+    np.testing.assert_array_equal(pred["time"][:, 0], step >= 3)
+    for name in ("majority", "task", "task_time"):
+        np.testing.assert_array_equal(pred[name][:, 0], np.ones(length, bool))
+
+
+def test_time_ignores_the_task_where_task_time_does_not() -> None:
+    # two tasks with opposite time courses: the time cells mix them (ties: true), task x time separates them
+    length = 10
+    tasks = np.array([0, 1, 0, 1])
+    episode = np.repeat(np.arange(4), length)
+    late = np.arange(length) >= 5
+    labels = np.concatenate([late, ~late, late, ~late])[:, None]
+    train, test = np.arange(2 * length), np.arange(2 * length, 4 * length)
+    pred = predict_baselines(labels, episode, tasks, train, test)
+    np.testing.assert_array_equal(pred["time"][:, 0], np.ones(2 * length, bool))
+    np.testing.assert_array_equal(pred["task_time"][:, 0], labels[test, 0])

@@ -132,6 +132,7 @@ def test_csv_files_parse_and_match_the_json(report: dict) -> None:
     assert series == {
         "probe",
         "majority baseline",
+        "time baseline",
         "task baseline",
         "task × time baseline",
         "shuffled-label control",

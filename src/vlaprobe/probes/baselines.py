@@ -3,10 +3,12 @@
 Each is fit on training rows and predicts test rows, per atom, the majority class of a cell:
 
 - ``majority``: one cell (the per-atom training majority);
+- ``time``: the decile of the row's normalised episode time (step / episode length), whatever the task: the
+  comparator of held-out tasks (``--split leave-one-task-out``), where the task cells were never seen;
 - ``task``: the row's task;
-- ``task_time``: the row's task and the decile of its normalised episode time (step / episode length).
+- ``task_time``: the row's task and its time decile.
 
-A cell never seen in training falls back to the coarser one (task x time -> task -> all). Ties count as
+A cell never seen in training falls back to the coarser one (time -> all; task x time -> task -> all). Ties count as
 true (frequency >= 0.5), as the majority baseline always did. Plain numpy on labels and episode
 bookkeeping, so any store (or any other labels) can be scored the same way::
 
@@ -19,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-BASELINES = ("majority", "task", "task_time")
-"""The baselines, coarsest first."""
+BASELINES = ("majority", "time", "task", "task_time")
+"""The baselines, coarsest first (``time`` and ``task`` are both one step finer than ``majority``)."""
 TIME_BINS = 10
 """Deciles of normalised episode time."""
 
@@ -81,7 +83,9 @@ def predict_baselines(
     task = np.asarray(episode_tasks)[np.asarray(episode)]
     train_y = labels[train_rows]
     majority = np.broadcast_to(train_y.mean(0) >= 0.5, (len(test_rows), labels.shape[1])).copy()
+    when = time_bin(episode, bins)
+    by_time = _cell_majority(train_y, when[train_rows], when[test_rows], majority)
     by_task = _cell_majority(train_y, task[train_rows], task[test_rows], majority)
     cell = task_time_cell(episode, episode_tasks, bins)
-    by_time = _cell_majority(train_y, cell[train_rows], cell[test_rows], by_task)
-    return {"majority": majority, "task": by_task, "task_time": by_time}
+    by_task_time = _cell_majority(train_y, cell[train_rows], cell[test_rows], by_task)
+    return {"majority": majority, "time": by_time, "task": by_task, "task_time": by_task_time}

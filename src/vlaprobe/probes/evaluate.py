@@ -261,6 +261,7 @@ def evaluate_head(
     base = {name: baseline(name) for name in BASELINES}
     b_point, b_res = base["majority"]
     tt_point, tt_res = base["task_time"]
+    t_point, t_res = base["time"]
     result = HeadResult(
         atoms=atoms,
         predicates=preds,
@@ -275,6 +276,10 @@ def evaluate_head(
         best=BestLayer(0, 0, "", None, None, None, ""),
         probe=probe,
         baseline={m: _summary(b_point[m], b_res[m], groups) for m in METRICS},
+        time_baseline={m: _summary(t_point[m], t_res[m], groups) for m in METRICS},
+        selectivity_time={
+            m: _summary(point[m] - t_point[m], res[m] - t_res[m], groups) for m in COUNT_METRICS
+        },
         task_baseline={m: _summary(base["task"][0][m], base["task"][1][m], groups) for m in METRICS},
         task_time_baseline={m: _summary(tt_point[m], tt_res[m], groups) for m in METRICS},
         selectivity_task_time={

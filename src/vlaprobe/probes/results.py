@@ -40,10 +40,12 @@ CONFIG_FILE = "config.json"
 PARTS = (
     "probe",
     "baseline",
+    "time_baseline",
     "task_baseline",
     "task_time_baseline",
     "control",
     "selectivity",
+    "selectivity_time",
     "selectivity_task_time",
     "observer",
 )
@@ -237,6 +239,11 @@ class HeadResult:
     """Metric name -> summary of the probes."""
     baseline: dict[str, MetricSummary]
     """The majority-class baseline (one row: it does not depend on the layer)."""
+    time_baseline: dict[str, MetricSummary] | None = None
+    """Decile of normalised episode time -> per-atom training majority over all tasks (one row): the comparator
+    of held-out tasks (absent from older files)."""
+    selectivity_time: dict[str, MetricSummary] | None = None
+    """Probe minus the time baseline, per resample (paired)."""
     task_baseline: dict[str, MetricSummary] | None = None
     """Task -> per-atom training majority (one row)."""
     task_time_baseline: dict[str, MetricSummary] | None = None

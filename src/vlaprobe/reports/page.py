@@ -21,6 +21,8 @@ BEST_COLUMNS = (
     ("selectivity.accuracy", "selectivity"),
     ("probe.balanced_accuracy", "balanced accuracy"),
     ("baseline.balanced_accuracy", "majority baseline (bal.)"),
+    ("time_baseline.balanced_accuracy", "time baseline (bal.)"),
+    ("selectivity_time.balanced_accuracy", "selectivity over the time baseline"),
     ("task_baseline.balanced_accuracy", "task baseline (bal.)"),
     ("task_time_baseline.balanced_accuracy", "task × time baseline (bal.)"),
     ("selectivity_task_time.balanced_accuracy", "selectivity over the task × time baseline"),

@@ -264,6 +264,7 @@ CURVE_SERIES = (
     ("control", "shuffled-label control", "--"),
     ("task_time_baseline", "task × time baseline", "s:"),
     ("task_baseline", "task baseline", "v:"),
+    ("time_baseline", "time baseline", "^:"),
     ("baseline", "majority baseline", ":"),
 )
 """(part, legend label, line style) of the curves, drawn in this order."""
