@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from vlaprobe.cognition.failure_scores import FEATURES, EpisodeData
-from vlaprobe.cognition.failures import evaluate, read_failures, table, write_failures
+from vlaprobe.cognition.failures import evaluate, read_failures, write_failures
+from vlaprobe.cognition.failures_report import table
 from vlaprobe.configs.failures import FailuresConfig
 from vlaprobe.errors import VlaprobeError
 
@@ -129,7 +130,7 @@ def test_bad_input_is_a_one_line_error(
 def test_the_report_shows_the_failures_section(tmp_path: Path) -> None:
     from tests.probes.made import probes_for_report
 
-    from vlaprobe.cognition.failures import report_section
+    from vlaprobe.cognition.failures_report import report_section
     from vlaprobe.configs.report import ReportConfig
     from vlaprobe.pipeline import report
 
@@ -140,4 +141,9 @@ def test_the_report_shows_the_failures_section(tmp_path: Path) -> None:
     page = report(ReportConfig(probes=probes, dpi=20)).read_text()
     start = page.index("<h2 id='failures'>Failure prediction</h2>")
     html = page[start:]
-    assert html.count("<tr><td>") == 4 and "ROC-AUC at 0.5" in html and "24 episodes" in html
+    assert (
+        html.count("<tr><td>") == 5
+        and html.count("<figure><img") == 2
+        and "ROC-AUC at 0.5" in html
+        and "24 episodes" in html
+    )
