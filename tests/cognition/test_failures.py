@@ -57,6 +57,45 @@ def test_probe_finds_the_failure_direction_and_the_figures_round_trip(tmp_path: 
     assert "probe" in table(result)
 
 
+def test_the_mlp_probe_and_the_token_predictors_see_a_known_failure_signal(tmp_path: Path) -> None:
+    """A failure's hidden state lies outside a sphere (no linear direction: only the MLP can find it); its
+    action-token entropy rises after the failure step. ROC curves and bands come with the AUCs."""
+    rng = np.random.default_rng(3)
+    data = []
+    for e in episodes(32, seed=3):
+        norm = rng.normal(size=e.hidden.shape).astype(np.float32)
+        norm /= np.linalg.norm(norm, axis=1, keepdims=True)
+        radius = np.where(np.arange(e.length) >= (e.failure_step or e.length), 3.0, 1.0)[:, None]
+        entropy = 1.0 + (np.arange(e.length) >= (e.failure_step or e.length))
+        tokens = np.stack([entropy, 1 / entropy], 1)
+        data.append(dataclasses.replace(e, hidden=norm * radius, tokens=tokens))
+    result = evaluate(data, FailuresConfig(alpha=0.2, folds=2, bootstrap=50), "truth", 3)
+    by = {p.name: p for p in result.predictors}
+    assert set(by) == {
+        "cognition",
+        "probe",
+        "probe_mlp",
+        "time",
+        "task_time",
+        "token_entropy",
+        "token_max_prob",
+    }
+    assert by["probe_mlp"].auc["1"].value is not None and by["probe_mlp"].auc["1"].value > 0.9
+    assert (
+        by["probe"].auc["1"].value is not None and by["probe"].auc["1"].value < by["probe_mlp"].auc["1"].value
+    )
+    assert by["token_entropy"].auc["1"].value == by["token_max_prob"].auc["1"].value == 1.0
+    roc = by["token_entropy"].roc["1"]
+    assert roc.fpr[0] == 0 and roc.tpr[-1] == 1 and np.isclose(np.trapezoid(roc.tpr, roc.fpr), 1.0)
+    bands = by["token_entropy"].bands
+    assert bands is not None and bands.success.median[-1] == 1.0 and bands.failure.median[-1] > 1.0
+    write_failures(tmp_path, result)
+    assert read_failures(tmp_path) == result
+    no_tokens = evaluate(episodes(12), FailuresConfig(alpha=0.3, folds=2, bootstrap=5), "truth", 3)
+    assert "token_entropy" not in {p.name for p in no_tokens.predictors}
+    assert no_tokens.token_uncertainty.startswith("not scored") and no_tokens.token_match is None
+
+
 def test_too_few_failures_are_refused() -> None:
     data = [e for e in episodes(20) if not e.failed] + [e for e in episodes(20) if e.failed][:2]
     with pytest.raises(VlaprobeError, match="2 failed and 10 successful episodes; --folds 5"):

@@ -175,7 +175,7 @@ def fit_hidden(kind: str, h: np.ndarray, y: np.ndarray, weight: np.ndarray, seed
     if kind == "probe":
         model = LogisticRegression(C=0.01, max_iter=500, random_state=seed)
     elif kind == "probe_mlp":
-        model = MLPClassifier((MLP_UNITS,), alpha=1.0, max_iter=200, random_state=seed)
+        model = MLPClassifier((MLP_UNITS,), alpha=0.1, max_iter=200, random_state=seed)
     else:
         raise ValueError(kind)
     pipe = make_pipeline(StandardScaler(), model)
