@@ -137,8 +137,13 @@ def test_the_command_on_a_written_store_with_and_without_probes(tmp_path: Path) 
                 "failure_step": 10 if failed else None,
             }
             writer.write_episode(info, cols, attrs)
+    cfg = FailuresConfig(store=tmp_path / "store", out=tmp_path / "out", folds=2, alpha=0.3, bootstrap=50)
+    with pytest.raises(
+        VlaprobeError, match="--token-model tiny is tiny-openvla-seed0, but .* was observed by fake"
+    ):
+        main(dataclasses.replace(cfg, token_model="tiny"))  # another model than the store's observer
+    assert not (tmp_path / "out" / "failures.json").exists()
     for extra in ({}, {"probes": probes}):
-        cfg = FailuresConfig(store=tmp_path / "store", out=tmp_path / "out", folds=2, alpha=0.3, bootstrap=50)
         assert main(dataclasses.replace(cfg, **extra)) == 0
         result = read_failures(tmp_path / "out")
         assert result.episodes == 12 and result.failed == 6 and result.known_failure_steps == 6
