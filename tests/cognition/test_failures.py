@@ -139,7 +139,7 @@ def test_the_command_on_a_written_store_with_and_without_probes(tmp_path: Path) 
             writer.write_episode(info, cols, attrs)
     cfg = FailuresConfig(store=tmp_path / "store", out=tmp_path / "out", folds=2, alpha=0.3, bootstrap=50)
     with pytest.raises(
-        VlaprobeError, match="--token-model tiny is tiny-openvla-seed0, but .* was observed by fake"
+        VlaprobeError, match=r"--token-model tiny is tiny-openvla-seed0, but .* was observed by fake"
     ):
         main(dataclasses.replace(cfg, token_model="tiny"))  # another model than the store's observer
     assert not (tmp_path / "out" / "failures.json").exists()
