@@ -183,6 +183,8 @@ def test_train_options_out_of_range(
         (["run", "--control-model", "tiny", "--pooling", "action_tokens"], "--control-model needs"),
         (["run", "--control-model", "tiny-libero"], "is the observed model itself"),
         (["run", "--train.probe.memory-mb", "-inf"], "--train.probe.memory-mb must be a positive finite"),
+        (["train", "--probe.c-without-cv", "inf"], "--probe.c-without-cv must be a positive finite"),
+        (["train", "--probe.c-without-cv", "0"], "--probe.c-without-cv must be a positive finite"),
     ],
 )
 def test_collect_report_run_options_out_of_range(

@@ -8,8 +8,9 @@ that is not one ``vlaprobe: error:`` line), hangs (a case over ``LIMIT`` seconds
 command that changed its input folders). The long commands stop where their work would begin (``GATES``: the
 collection's workers, the trainer's loop, the server's loop, the simulator): every up-front check has run by then.
 
-CI runs a few cases; ``VLAPROBE_FUZZ=big`` the sweep (``VLAPROBE_FUZZ_CASES``, default 500) and
-``VLAPROBE_FUZZ_REPORT=FILE`` writes the counts per command as JSON.
+CI runs a few cases; ``VLAPROBE_FUZZ=big`` the sweep (``VLAPROBE_FUZZ_CASES``, default 500; ``VLAPROBE_FUZZ_SEED``
+fixes hypothesis's seed so that a sweep can be repeated, default a fresh one) and ``VLAPROBE_FUZZ_REPORT=FILE``
+writes the counts per command as JSON.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ st = pytest.importorskip("hypothesis.strategies")
 
 BIG = os.environ.get("VLAPROBE_FUZZ") == "big"
 CASES = int(os.environ.get("VLAPROBE_FUZZ_CASES", "500" if BIG else "8"))
+SEED = int(os.environ["VLAPROBE_FUZZ_SEED"]) if os.environ.get("VLAPROBE_FUZZ_SEED") else None
 LIMIT = 120.0
 """Seconds a case may take before it counts as a hang."""
 GATES = {
@@ -164,6 +166,7 @@ def _baseline(name: str, f: dict[str, Path]) -> list[str]:
         "compare-stores": [s, str(f["store2"]), "--bootstrap", "10"],
         "report": ["--probes", p, "--out", o],
         "cognition": ["--store", s, "--probes", p, "--out", o],
+        "failures": ["--store", s, "--out", o, "--folds", "2", "--bootstrap", "10"],
         "model-info": ["--policy.model", "tiny"],
         "serve": ["--probes", p, "--port", "0", "--model", "tiny", "--recordings", o],
         "finetune": ["--stores", s, "--out", o, "--model", "tiny", "--max-steps", "1"],
@@ -318,6 +321,7 @@ def test_fuzzed_flags_are_refused_in_one_line(
         max_examples=CASES, deadline=None, database=None, derandomize=not BIG,
         phases=[hypothesis.Phase.generate], suppress_health_check=list(hypothesis.HealthCheck),
     )  # fmt: skip
+    @hypothesis.seed(SEED)
     @hypothesis.given(case=cases())
     def one(case: tuple[str, list[list[str]]]) -> None:
         name, fuzzed = case
@@ -348,7 +352,13 @@ def test_fuzzed_flags_are_refused_in_one_line(
     one()
     counts = {n: dict(c) for n, c in sorted(tally.outcomes.items())}
     bad = Counter(p["outcome"] for p in tally.problems)
-    report = {"cases": sum(tally.cases.values()), "per_command": counts, "problems": tally.problems, **bad}
+    report = {
+        "cases": sum(tally.cases.values()),
+        "seed": SEED,
+        "per_command": counts,
+        "problems": tally.problems,
+        **bad,
+    }
     if os.environ.get("VLAPROBE_FUZZ_REPORT"):
         Path(os.environ["VLAPROBE_FUZZ_REPORT"]).write_text(json.dumps(report, indent=1) + "\n")
     print(json.dumps({"cases": report["cases"], **bad, "per_command": counts}))

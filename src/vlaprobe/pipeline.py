@@ -129,7 +129,7 @@ def _run(cfg: RunConfig) -> Path:
 def report(cfg: ReportConfig) -> Path:
     """``vlaprobe report``: the report page with the offline cognition evaluation's and the failure prediction's
     sections when the probe folder has their files."""
-    from vlaprobe.cognition.failures import report_section as failures_section
+    from vlaprobe.cognition.failures_report import report_section as failures_section
     from vlaprobe.cognition.monitor import report_section
     from vlaprobe.reports.report import write_report
 

@@ -55,3 +55,25 @@ def test_conformal_band_is_infinite_without_enough_calibration() -> None:
     assert np.isinf(fm.conformal_band(few, 0.1, 5)).all()  # (5+1)·0.9 > 5
     assert np.isinf(fm.conformal_band([], 0.1, 5)).all()
     assert np.isfinite(fm.conformal_band([np.zeros(5) for _ in range(9)], 0.1, 5)).all()
+
+
+def test_roc_curve_is_scikit_learns_and_its_area_is_the_auc() -> None:
+    from sklearn.metrics import roc_curve
+
+    rng = np.random.default_rng(1)
+    scores = np.round(rng.normal(size=50), 1)  # ties
+    failed = rng.random(50) < 0.5
+    fpr, tpr = fm.roc_curve(scores, failed)
+    ref_fpr, ref_tpr, _ = roc_curve(failed, scores, drop_intermediate=False)
+    assert np.allclose(fpr, ref_fpr) and np.allclose(tpr, ref_tpr)
+    assert fpr[0] == tpr[0] == 0 and fpr[-1] == tpr[-1] == 1
+    assert np.isclose(np.trapezoid(tpr, fpr), fm.weighted_auc(scores, failed))
+    assert fm.roc_curve(np.array([1.0, 0.0]), np.array([True, False])) == ([0.0, 0.0, 1.0], [0.0, 1.0, 1.0])
+    assert fm.roc_curve(scores, np.zeros(50, bool)) == ([], [])
+
+
+def test_score_bands_are_the_quartiles_at_each_normalised_time() -> None:
+    curves = [np.full(11, float(v)) for v in (0, 1, 2, 3, 4)] + [np.arange(5.0) * 10]
+    low, median, high = fm.score_bands(curves, [0.0, 1.0])
+    assert median == [1.5, 2.5] and low == [0.25, 1.25] and high == [2.75, 3.75]
+    assert fm.score_bands([], [0.5]) == ([], [], [])

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from vlaprobe.cognition.failure_scores import FEATURES, EpisodeData
-from vlaprobe.cognition.failures import evaluate, read_failures, table, write_failures
+from vlaprobe.cognition.failures import evaluate, read_failures, write_failures
+from vlaprobe.cognition.failures_report import table
 from vlaprobe.configs.failures import FailuresConfig
 from vlaprobe.errors import VlaprobeError
 
@@ -56,6 +57,45 @@ def test_probe_finds_the_failure_direction_and_the_figures_round_trip(tmp_path: 
     assert "probe" in table(result)
 
 
+def test_the_mlp_probe_and_the_token_predictors_see_a_known_failure_signal(tmp_path: Path) -> None:
+    """A failure's hidden state lies outside a sphere (no linear direction: only the MLP can find it); its
+    action-token entropy rises after the failure step. ROC curves and bands come with the AUCs."""
+    rng = np.random.default_rng(3)
+    data = []
+    for e in episodes(32, seed=3):
+        norm = rng.normal(size=e.hidden.shape).astype(np.float32)
+        norm /= np.linalg.norm(norm, axis=1, keepdims=True)
+        radius = np.where(np.arange(e.length) >= (e.failure_step or e.length), 3.0, 1.0)[:, None]
+        entropy = 1.0 + (np.arange(e.length) >= (e.failure_step or e.length))
+        tokens = np.stack([entropy, 1 / entropy], 1)
+        data.append(dataclasses.replace(e, hidden=norm * radius, tokens=tokens))
+    result = evaluate(data, FailuresConfig(alpha=0.2, folds=2, bootstrap=50), "truth", 3)
+    by = {p.name: p for p in result.predictors}
+    assert set(by) == {
+        "cognition",
+        "probe",
+        "probe_mlp",
+        "time",
+        "task_time",
+        "token_entropy",
+        "token_max_prob",
+    }
+    assert by["probe_mlp"].auc["1"].value is not None and by["probe_mlp"].auc["1"].value > 0.9
+    assert (
+        by["probe"].auc["1"].value is not None and by["probe"].auc["1"].value < by["probe_mlp"].auc["1"].value
+    )
+    assert by["token_entropy"].auc["1"].value == by["token_max_prob"].auc["1"].value == 1.0
+    roc = by["token_entropy"].roc["1"]
+    assert roc.fpr[0] == 0 and roc.tpr[-1] == 1 and np.isclose(np.trapezoid(roc.tpr, roc.fpr), 1.0)
+    bands = by["token_entropy"].bands
+    assert bands is not None and bands.success.median[-1] == 1.0 and bands.failure.median[-1] > 1.0
+    write_failures(tmp_path, result)
+    assert read_failures(tmp_path) == result
+    no_tokens = evaluate(episodes(12), FailuresConfig(alpha=0.3, folds=2, bootstrap=5), "truth", 3)
+    assert "token_entropy" not in {p.name for p in no_tokens.predictors}
+    assert no_tokens.token_uncertainty.startswith("not scored") and no_tokens.token_match is None
+
+
 def test_too_few_failures_are_refused() -> None:
     data = [e for e in episodes(20) if not e.failed] + [e for e in episodes(20) if e.failed][:2]
     with pytest.raises(VlaprobeError, match="2 failed and 10 successful episodes; --folds 5"):
@@ -97,8 +137,13 @@ def test_the_command_on_a_written_store_with_and_without_probes(tmp_path: Path) 
                 "failure_step": 10 if failed else None,
             }
             writer.write_episode(info, cols, attrs)
+    cfg = FailuresConfig(store=tmp_path / "store", out=tmp_path / "out", folds=2, alpha=0.3, bootstrap=50)
+    with pytest.raises(
+        VlaprobeError, match=r"--token-model tiny is tiny-openvla-seed0, but .* was observed by fake"
+    ):
+        main(dataclasses.replace(cfg, token_model="tiny"))  # another model than the store's observer
+    assert not (tmp_path / "out" / "failures.json").exists()
     for extra in ({}, {"probes": probes}):
-        cfg = FailuresConfig(store=tmp_path / "store", out=tmp_path / "out", folds=2, alpha=0.3, bootstrap=50)
         assert main(dataclasses.replace(cfg, **extra)) == 0
         result = read_failures(tmp_path / "out")
         assert result.episodes == 12 and result.failed == 6 and result.known_failure_steps == 6
@@ -129,7 +174,7 @@ def test_bad_input_is_a_one_line_error(
 def test_the_report_shows_the_failures_section(tmp_path: Path) -> None:
     from tests.probes.made import probes_for_report
 
-    from vlaprobe.cognition.failures import report_section
+    from vlaprobe.cognition.failures_report import report_section
     from vlaprobe.configs.report import ReportConfig
     from vlaprobe.pipeline import report
 
@@ -140,4 +185,9 @@ def test_the_report_shows_the_failures_section(tmp_path: Path) -> None:
     page = report(ReportConfig(probes=probes, dpi=20)).read_text()
     start = page.index("<h2 id='failures'>Failure prediction</h2>")
     html = page[start:]
-    assert html.count("<tr><td>") == 4 and "ROC-AUC at 0.5" in html and "24 episodes" in html
+    assert (
+        html.count("<tr><td>") == 5
+        and html.count("<figure><img") == 2
+        and "ROC-AUC at 0.5" in html
+        and "24 episodes" in html
+    )

@@ -7,8 +7,9 @@ size limit. After each message the client reads what came back for a moment; eve
 hangs (a probe unanswered), connections the server dropped (other than the 1009 of an oversized frame), the
 server dying, and recorded episodes the REST API cannot read back (silent data loss).
 
-CI runs a few dozen messages; ``VLAPROBE_FUZZ=big`` the sweep (``VLAPROBE_FUZZ_MESSAGES``, default 500) and
-``VLAPROBE_FUZZ_REPORT=FILE`` writes the counts as JSON.
+CI runs a few dozen messages; ``VLAPROBE_FUZZ=big`` the sweep (``VLAPROBE_FUZZ_MESSAGES``, default 500;
+``VLAPROBE_FUZZ_SEED`` fixes hypothesis's seed, default a fresh one) and ``VLAPROBE_FUZZ_REPORT=FILE`` writes the
+counts as JSON.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ st = pytest.importorskip("hypothesis.strategies")
 
 BIG = os.environ.get("VLAPROBE_FUZZ") == "big"
 MESSAGES = int(os.environ.get("VLAPROBE_FUZZ_MESSAGES", "500" if BIG else "40"))
+SEED = int(os.environ["VLAPROBE_FUZZ_SEED"]) if os.environ.get("VLAPROBE_FUZZ_SEED") else None
 PROBE_EVERY = 10
 TYPES = ["start", "stop", "pause", "resume", "drop", "replay", "hello", "step", "", "START", "bogus"]
 FIELDS = ["task", "init", "driver", "max_steps", "steps", "episode_id", "hz", "extra", "record"]
@@ -131,6 +133,7 @@ def test_fuzzed_messages_leave_the_server_answering(fake_run: Path, tmp_path: Pa
         max_examples=MESSAGES, deadline=None, database=None, derandomize=not BIG,
         phases=[hypothesis.Phase.generate], suppress_health_check=list(hypothesis.HealthCheck),
     )  # fmt: skip
+    @hypothesis.seed(SEED)
     @hypothesis.given(frame=frames)
     def one(frame: str | bytes) -> None:
         ws = state["ws"]
@@ -159,7 +162,7 @@ def test_fuzzed_messages_leave_the_server_answering(fake_run: Path, tmp_path: Pa
         stop(proc)
     tracebacks = stderr.read_text().count("Traceback")
     report = {
-        "messages": counts.messages, "tracebacks": tracebacks, "hangs": len(hangs), "dropped": counts.dropped,
+        "messages": counts.messages, "seed": SEED, "tracebacks": tracebacks, "hangs": len(hangs), "dropped": counts.dropped,
         "oversized_closed_1009": counts.oversized, "error_replies": counts.errors,
         "episodes_started": counts.episodes, "unreadable_recordings": lost, "alive_at_end": alive,
     }  # fmt: skip

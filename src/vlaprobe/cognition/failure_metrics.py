@@ -9,7 +9,10 @@ scores with known answers (tests/cognition/test_failure_metrics.py).
   standardised excursions max_t (r(t) - μ(t)) / σ(t). A new successful episode exchangeable with them crosses
   the band somewhere with probability at most α.
 - **ROC-AUC** at a normalised time τ: of the running scores at row ⌊τ·(T-1)⌋ of each episode, failures against
-  successes (Mann-Whitney, ties counting half), with episode weights for the bootstrap.
+  successes (Mann-Whitney, ties counting half), with episode weights for the bootstrap; :func:`roc_curve` the
+  curve whose area that is.
+- **Score bands** over normalised time: the median and quartiles of the running scores of a group of episodes
+  at each normalised time (SAFE's score-vs-time plots).
 """
 
 from __future__ import annotations
@@ -105,3 +108,31 @@ def weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
     if not keep.any():
         return math.nan
     return float(np.median(np.repeat(values[keep], weights[keep].astype(np.int64))))
+
+
+def roc_curve(scores: np.ndarray, failed: np.ndarray) -> tuple[list[float], list[float]]:
+    """(false-positive rates, true-positive rates) of every threshold on ``scores``, from (0, 0) to (1, 1); tied
+    scores make one diagonal step, so the trapezoid area under it is :func:`weighted_auc`. Empty when a class
+    is missing."""
+    scores, failed = np.asarray(scores, np.float64), np.asarray(failed, bool)
+    pos, neg = int(failed.sum()), int((~failed).sum())
+    if pos == 0 or neg == 0:
+        return [], []
+    fpr, tpr = [0.0], [0.0]
+    for threshold in np.unique(scores)[::-1]:
+        at = scores >= threshold
+        fpr.append(float((at & ~failed).sum() / neg))
+        tpr.append(float((at & failed).sum() / pos))
+    return fpr, tpr
+
+
+def score_bands(
+    curves: Sequence[np.ndarray], taus: Sequence[float]
+) -> tuple[list[float], list[float], list[float]]:
+    """(25th percentile, median, 75th percentile) of the curves' values at each normalised time; empty when
+    there are no curves."""
+    if not curves:
+        return [], [], []
+    values = np.stack([at_time(curves, tau) for tau in taus])  # (times, episodes)
+    q = np.percentile(values, [25, 50, 75], axis=1)
+    return [float(x) for x in q[0]], [float(x) for x in q[1]], [float(x) for x in q[2]]

@@ -7,13 +7,19 @@ episode from that row and the ones before it, as a live monitor could:
   progress deficit (the training successes' mean subgoal progress at that step minus the episode's), the stall
   length (steps since the subgoal level last changed, /100), the violations holding, and the regressions and
   drops so far. Its coefficients say which features drove an alarm.
-- ``probe``: a logistic regression on one layer's hidden state of the row (standardised).
+- ``probe``: a logistic regression on one layer's hidden state of the row (standardised); ``probe_mlp``: a small
+  MLP (one hidden layer of :data:`MLP_UNITS`, weight decay, early stopping) on the same states, trained by the
+  same function on the same rows and weights (:func:`fit_hidden`).
 - ``time``: the step itself. ``task_time``: the training episodes' failure share among those of the same task
   still running at that step (bins of :data:`BIN` steps).
+- ``token_entropy`` and ``token_max_prob`` (only when the episodes carry them, ``EpisodeData.tokens``): the mean
+  entropy of the 7 action tokens' distributions over the action bins, and minus their mean top probability,
+  as the observer computed them at the row. Unsupervised: nothing is fitted.
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -25,7 +31,17 @@ FEATURES = ("progress_deficit", "stall", "violations", "regressions", "drops")
 """The cognition's features, in column order."""
 BIN = 10
 """Steps per bin of the task × time baseline."""
-PREDICTORS = ("cognition", "probe", "time", "task_time")
+PREDICTORS = ("cognition", "probe", "probe_mlp", "time", "task_time")
+TOKEN_PREDICTORS = ("token_entropy", "token_max_prob")
+"""Scored when every episode carries its action-token distribution (``EpisodeData.tokens``)."""
+MLP_UNITS = 32
+"""Hidden units of the MLP failure probe."""
+
+
+def predictor_names(data: Sequence[EpisodeData]) -> tuple[str, ...]:
+    """The predictors ``data`` supports: the token ones when every episode carries its token distribution."""
+    tokens = bool(data) and all(e.tokens is not None for e in data)
+    return PREDICTORS + (TOKEN_PREDICTORS if tokens else ())
 
 
 @dataclass
@@ -47,6 +63,8 @@ class EpisodeData:
     """Per row: the rules whose violations hold."""
     subgoal: list[str]
     """Per row: the active subgoal's belief ("" once the goal is reached)."""
+    tokens: np.ndarray | None = None
+    """(T, 2): the observer's mean action-token entropy and mean top probability at each row, or None."""
 
     @property
     def length(self) -> int:
@@ -103,7 +121,8 @@ class Fitted:
     scale: np.ndarray
     coef: np.ndarray
     intercept: float
-    probe: object
+    probes: dict[str, object]
+    """"probe", "probe_mlp" -> a fitted classifier of the hidden state (:func:`fit_hidden`)."""
     task_time: dict[tuple[int, int], float]
     base_rate: float
 
@@ -112,8 +131,14 @@ class Fitted:
         t = np.arange(e.length, dtype=np.float64)
         if name == "cognition":
             return self.contributions(e).sum(1) + self.intercept
-        if name == "probe":
-            return np.asarray(self.probe.decision_function(e.hidden))  # type: ignore[attr-defined]
+        if name in self.probes:
+            p = np.asarray(self.probes[name].predict_proba(e.hidden))[:, 1]  # type: ignore[attr-defined]
+            p = np.clip(p, 1e-12, 1 - 1e-12)
+            return np.log(p / (1 - p))  # the logit: the linear probe's decision function
+        if name in TOKEN_PREDICTORS:
+            if e.tokens is None:
+                raise ValueError(f"episode {e.key} carries no token distribution")
+            return e.tokens[:, 0] if name == "token_entropy" else -e.tokens[:, 1]
         if name == "time":
             return t
         if name == "task_time":
@@ -126,11 +151,46 @@ class Fitted:
         return (with_deficit(e, self.expected) - self.mean) / self.scale * self.coef
 
 
+def balanced(y: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """``weight`` rescaled so that both classes carry the same total weight."""
+    out = weight.astype(np.float64).copy()
+    for c in (False, True):
+        mass = out[y == c].sum()
+        if mass > 0:
+            out[y == c] *= 0.5 * weight.sum() / mass
+    return out
+
+
+def fit_hidden(kind: str, h: np.ndarray, y: np.ndarray, weight: np.ndarray, seed: int) -> object:
+    """A failure probe of hidden states: standardised, then ``kind`` "probe" (logistic regression, C = 0.01)
+    or "probe_mlp" (an MLP of :data:`MLP_UNITS` units); both on the same rows with the same class-balanced
+    ``weight`` (episodes counted equally)."""
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.linear_model import LogisticRegression
+    from sklearn.neural_network import MLPClassifier
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+
+    model: object
+    if kind == "probe":
+        model = LogisticRegression(C=0.01, max_iter=500, random_state=seed)
+    elif kind == "probe_mlp":
+        model = MLPClassifier((MLP_UNITS,), alpha=0.1, max_iter=200, random_state=seed)
+    else:
+        raise ValueError(kind)
+    pipe = make_pipeline(StandardScaler(), model)
+    step = pipe.steps[-1][0]
+    with warnings.catch_warnings():
+        warnings.simplefilter(
+            "ignore", ConvergenceWarning
+        )  # max_iter bounds the MLP's time; it is scored anyway
+        pipe.fit(h, y, **{f"{step}__sample_weight": balanced(y, weight)})
+    return pipe
+
+
 def fit(train: Sequence[EpisodeData], seed: int) -> Fitted:
     """Fit every predictor on ``train`` (both outcomes needed)."""
     from sklearn.linear_model import LogisticRegression
-    from sklearn.pipeline import make_pipeline
-    from sklearn.preprocessing import StandardScaler
 
     length = max(e.length for e in train)
     expected = expected_progress(train, length)
@@ -141,15 +201,11 @@ def fit(train: Sequence[EpisodeData], seed: int) -> Fitted:
     lr = LogisticRegression(C=1.0, class_weight="balanced", max_iter=1000, random_state=seed)
     lr.fit((x - mean) / scale, y, sample_weight=weight)
     h = np.concatenate([e.hidden for e in train])
-    probe = make_pipeline(
-        StandardScaler(),
-        LogisticRegression(C=0.01, class_weight="balanced", max_iter=500, random_state=seed),
-    )
-    probe.fit(h, y, logisticregression__sample_weight=weight)
+    probes = {kind: fit_hidden(kind, h, y, weight, seed) for kind in ("probe", "probe_mlp")}
     counts: dict[tuple[int, int], list[int]] = {}
     for e in train:
         for b in range(-(-e.length // BIN)):
             counts.setdefault((e.task, b), []).append(int(e.failed))
     base = float(np.mean([e.failed for e in train]))
     task_time = {k: (sum(v) + base) / (len(v) + 1) for k, v in counts.items()}  # one pseudo-episode of prior
-    return Fitted(expected, mean, scale, lr.coef_[0], float(lr.intercept_[0]), probe, task_time, base)
+    return Fitted(expected, mean, scale, lr.coef_[0], float(lr.intercept_[0]), probes, task_time, base)

@@ -11,9 +11,8 @@ from __future__ import annotations
 
 import json
 from collections import Counter
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,25 +21,54 @@ from vlaprobe.cognition.failure_metrics import (
     at_time,
     conformal_band,
     first_alarm,
+    roc_curve,
     running_mean,
+    score_bands,
     weighted_auc,
     weighted_median,
 )
-from vlaprobe.cognition.failure_scores import FEATURES, PREDICTORS, EpisodeData, Fitted, fit
+from vlaprobe.cognition.failure_scores import FEATURES, EpisodeData, Fitted, fit, predictor_names
 from vlaprobe.configs.failures import FailuresConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import from_json, read_versioned, write_atomic
 from vlaprobe.probes.bootstrap import Estimate, bootstrap_weights, interval
 
-if TYPE_CHECKING:
-    from vlaprobe.reports.sections import Section
-
 FAILURES_FILE = "failures.json"
-FORMAT, VERSION = "vlaprobe-failures", 1
+FORMAT, VERSION = "vlaprobe-failures", 2
+READABLE = {1, 2}
+"""Version 1 lacks the ROC curves, the score bands and the token figures: they read as empty."""
 TIMES = (0.25, 0.5, 0.75, 1.0)
 """Normalised times of the ROC-AUCs."""
 STEPS = (25, 50, 100)
 """Steps of the length-free ROC-AUCs."""
+BAND_TIMES = tuple(round(i / 20, 2) for i in range(21))
+"""Normalised times of the score bands."""
+
+
+@dataclass(frozen=True)
+class Roc:
+    """A ROC curve: false- and true-positive rates of every threshold, from (0, 0) to (1, 1)."""
+
+    fpr: list[float]
+    tpr: list[float]
+
+
+@dataclass(frozen=True)
+class Band:
+    """The quartiles of a group of episodes' running scores at each of :data:`BAND_TIMES`."""
+
+    low: list[float]
+    median: list[float]
+    high: list[float]
+
+
+@dataclass(frozen=True)
+class ScoreBands:
+    """A predictor's running score over normalised time, successes against failures (out of fold)."""
+
+    times: list[float]
+    success: Band
+    failure: Band
 
 
 @dataclass(frozen=True)
@@ -66,6 +94,10 @@ class PredictorFigures:
     alarm_drivers: dict[str, int]
     """cognition only: the feature with the largest term at each first alarm, and "rule:<id>" for each rule
     violated then, counted over alarmed episodes."""
+    roc: dict[str, Roc] = field(default_factory=dict)
+    """Normalised time -> the ROC curve of the running score there (its area is ``auc``)."""
+    bands: ScoreBands | None = None
+    """The running score's median and interquartile band over time, successes and failures."""
 
 
 @dataclass(frozen=True)
@@ -85,10 +117,13 @@ class FailuresResult:
     """The fewest successful calibration episodes of a fold's band; below 1/alpha - 1 the band is infinite
     (no alarm can be controlled at that alpha)."""
     token_uncertainty: str
-    """Why token uncertainty is not among the predictors."""
+    """How token uncertainty was scored (the model that recomputed it), or why it was not."""
     predictors: list[PredictorFigures]
     cognition_coefficients: dict[str, float]
     """The cognition score's coefficients (standardised features), fitted on every episode."""
+    token_match: float | None = None
+    """Share of steps whose recomputed greedy action tokens equal the stored ones (None: not recomputed): 1.0
+    says the recomputed distributions are the ones the observer chose its tokens from."""
 
 
 def _fig(value: float, resampled: np.ndarray) -> Estimate:
@@ -98,6 +133,21 @@ def _fig(value: float, resampled: np.ndarray) -> Estimate:
         return None if not np.isfinite(x) else round(float(x), 4)
 
     return Estimate(clean(value), clean(low), clean(high))
+
+
+NO_TOKENS = (
+    "not scored: the store keeps the action token ids, not their probabilities; --token-model (the store's observer)"
+    " recomputes them from the stored images"
+)
+
+
+@dataclass(frozen=True)
+class TokenSource:
+    """Where the episodes' action-token distributions came from."""
+
+    how: str
+    match: float
+    """Share of steps whose recomputed greedy tokens equal the stored ones."""
 
 
 @dataclass
@@ -138,13 +188,13 @@ def score_folds(
     also the fewest calibration episodes of a fold."""
     failed = np.array([e.failed for e in data])
     cals = calibration_sets(failed, fold, seed)
-    fits = []
+    fits, names = [], predictor_names(data)
     for k, cal in enumerate(cals):
         train = [e for i, (e, f) in enumerate(zip(data, fold, strict=True)) if f != k and i not in set(cal)]
         fits.append(fit(train, seed))
     length = max(e.length for e in data)
     out = {}
-    for p in PREDICTORS:
+    for p in names:
         bands = [
             conformal_band([running_mean(fits[k].score(p, data[i])) for i in cal], alpha, length)
             for k, cal in enumerate(cals)
@@ -171,12 +221,17 @@ def predictor_figures(
 ) -> PredictorFigures:
     """The figures of one predictor, with intervals over the bootstrap ``weights`` (resamples, episodes)."""
     failed = np.array([e.failed for e in data])
-    auc = {}
+    auc, roc = {}, {}
     for tau in TIMES:
         x = at_time(s.running, tau)
         auc[f"{tau:g}"] = _fig(
             weighted_auc(x, failed), np.array([weighted_auc(x, failed, w) for w in weights])
         )
+        roc[f"{tau:g}"] = Roc(*(list(np.round(v, 4)) for v in roc_curve(x, failed)))
+    groups = [
+        [r for r, f in zip(s.running, failed, strict=True) if f == outcome] for outcome in (False, True)
+    ]
+    bands = ScoreBands(list(BAND_TIMES), *(Band(*score_bands(g, BAND_TIMES)) for g in groups))
     at_step = {}
     for step in STEPS:
         alive = np.array([e.length > step for e in data])
@@ -218,11 +273,16 @@ def predictor_figures(
         false_alarm_rate=share(alarmed, wins),
         false_alarms_per_100_steps=_fig(100 * (onsets * wins).sum() / max((rows * wins).sum(), 1), per100),
         alarm_drivers=drivers,
+        roc=roc,
+        bands=bands,
     )
 
 
-def evaluate(data: list[EpisodeData], cfg: FailuresConfig, atoms: str, layer: int) -> FailuresResult:
-    """Every predictor's figures on ``data`` (needs failed and successful episodes)."""
+def evaluate(
+    data: list[EpisodeData], cfg: FailuresConfig, atoms: str, layer: int, tokens: TokenSource | None = None
+) -> FailuresResult:
+    """Every predictor's figures on ``data`` (needs failed and successful episodes); ``tokens``: where the
+    episodes' token distributions came from, when they carry them."""
     failed = np.array([e.failed for e in data])
     if failed.sum() < cfg.folds or (~failed).sum() < cfg.folds:
         raise VlaprobeError(
@@ -236,7 +296,7 @@ def evaluate(data: list[EpisodeData], cfg: FailuresConfig, atoms: str, layer: in
         predictor_figures(
             p, data, scored[p], weights, _drivers(data, fits, fold, scored[p]) if p == "cognition" else {}
         )
-        for p in PREDICTORS
+        for p in predictor_names(data)
     ]
     whole = fit(data, cfg.seed)
     return FailuresResult(
@@ -249,9 +309,10 @@ def evaluate(data: list[EpisodeData], cfg: FailuresConfig, atoms: str, layer: in
         alpha=cfg.alpha,
         folds=cfg.folds,
         calibration_episodes=calibration,
-        token_uncertainty="the store keeps the action token ids, not their probabilities: no entropy to score",
+        token_uncertainty=NO_TOKENS if tokens is None else tokens.how,
         predictors=figures,
         cognition_coefficients={f: round(float(c), 4) for f, c in zip(FEATURES, whole.coef, strict=True)},
+        token_match=None if tokens is None else tokens.match,
     )
 
 
@@ -267,112 +328,15 @@ def read_failures(folder: str | Path) -> FailuresResult:
     """Read ``failures.json`` from ``folder`` (the one reader)."""
     path = Path(folder) / FAILURES_FILE
     hint = "run `vlaprobe failures` again"
-    data, _ = read_versioned(path, FORMAT, "failure-prediction file", {VERSION}, hint)
+    data, _ = read_versioned(path, FORMAT, "failure-prediction file", READABLE, hint)
     body = {k: v for k, v in data.items() if k not in ("format", "format_version")}
     return from_json(FailuresResult, body, path, hint)
 
 
-def table(result: FailuresResult) -> str:
-    """The figures as lines for people."""
-
-    def f(x: Estimate) -> str:
-        if x.value is None:
-            return "n/a"
-        return f"{x.value:.3g} [{'n/a' if x.low is None else f'{x.low:.3g}'}, {'n/a' if x.high is None else f'{x.high:.3g}'}]"
-
-    lines = [
-        f"{result.episodes} episodes, {result.failed} failed ({result.known_failure_steps} with a known failure step);"
-        f" cognition on {result.atoms}, probe layer {result.layer}, alpha {result.alpha}, {result.folds} folds"
-        f" (at least {result.calibration_episodes} calibration successes each)",
-    ]
-    for p in result.predictors:
-        aucs = "  ".join(f"AUC@{t} {f(v)}" for t, v in p.auc.items())
-        aucs += "  " + "  ".join(f"AUC@step{t} {f(v)}" for t, v in p.auc_at_step.items())
-        lines.append(f"{p.name:10s} {aucs}")
-        lines.append(
-            f"{'':10s} detected {f(p.detection_rate)}  lead to end {f(p.lead_to_end)}  lead to failure step "
-            f"{f(p.lead_to_failure_step)}  false-alarm rate {f(p.false_alarm_rate)}  per 100 steps "
-            f"{f(p.false_alarms_per_100_steps)}"
-        )
-        if p.alarm_drivers:
-            lines.append(f"{'':10s} alarm drivers {p.alarm_drivers}")
-    lines.append(f"token uncertainty: {result.token_uncertainty}")
-    return "\n".join(lines)
-
-
-def report_section(probes: Path) -> Section | None:
-    """The report's failure-prediction section when ``failures.json`` is in the probe folder (``vlaprobe
-    failures --out`` that folder), else None; it renders ``templates/failures_section.html`` of this package."""
-    if not (Path(probes) / FAILURES_FILE).is_file():
-        return None
-    from vlaprobe.reports.sections import Section
-
-    data = asdict(read_failures(probes))
-    return Section(
-        id="failures",
-        title="Failure prediction",
-        template="failures_section.html",
-        data=data,
-        package="vlaprobe.cognition",
-    )
-
-
-def load_episodes(cfg: FailuresConfig) -> tuple[list[EpisodeData], str, int]:
-    """Every stored episode as the predictors read it; the atoms' source and the probe's layer."""
-    from vlaprobe.cognition.core import Cognition
-    from vlaprobe.cognition.failure_scores import cognition_columns, run_cognition
-    from vlaprobe.cognition.readout import HEADS, ProbeReadout
-    from vlaprobe.collection.store import ActivationStore
-    from vlaprobe.collection.verify import require_intact
-
-    store = ActivationStore.open(cfg.store)
-    infos = store.episodes()
-    require_intact(cfg.store, read=True, keys=[e.key for e in infos])
-    layer = store.num_hidden_states // 2 if cfg.layer is None else cfg.layer
-    if not 0 <= layer < store.num_hidden_states:
-        raise VlaprobeError(
-            f"--layer {layer} is not a hidden state of {cfg.store} (0..{store.num_hidden_states - 1})"
-        )
-    readout = None if cfg.probes is None else ProbeReadout.load(cfg.probes, model_id=store.model_id)
-    cogs: dict[tuple[str, str], Cognition] = {}
-    data = []
-    for info in infos:
-        attrs = store.episode(info.key).attributes
-        if attrs.goal is None:
-            raise VlaprobeError(
-                f"episode {info.key} of {cfg.store} records no goal; collect it with this vlaprobe"
-            )
-        names = (attrs.goal.pick, attrs.goal.place)
-        if names not in cogs:
-            probed = None if readout is None else readout.probed
-            cogs[names] = Cognition(
-                store.atom_names["object"], store.atom_names["action"], attrs.goal, probed=probed
-            )
-        if readout is None:
-            obj, act = store.labels("object", [info.key]), store.labels("action", [info.key])
-        else:
-            pred = readout.assign_steps({h: store.layer(readout.layers[h], [info.key]) for h in HEADS})
-            obj, act = pred.values["object"], pred.values["action"]
-        steps = run_cognition(cogs[names], obj, act)
-        cols, rules, subgoal = cognition_columns(steps)
-        data.append(
-            EpisodeData(
-                key=info.key,
-                task=info.task,
-                failed=not info.success,
-                failure_step=attrs.failure_step,
-                hidden=np.asarray(store.layer(layer, [info.key]), np.float32),
-                progress=np.array([s.progress for s in steps]),
-                cognition=cols,
-                rules=rules,
-                subgoal=subgoal,
-            )
-        )
-    return data, "truth" if cfg.probes is None else str(cfg.probes), layer
-
-
 def main(cfg: FailuresConfig) -> int:
     """Run the evaluation, write ``failures.json`` into ``--out`` and print the figures."""
+    from vlaprobe.cognition.failures_load import load_episodes
+    from vlaprobe.cognition.failures_report import table
     from vlaprobe.files import check_output_folder
 
     if not 0 < cfg.alpha < 1:
@@ -380,8 +344,8 @@ def main(cfg: FailuresConfig) -> int:
     if cfg.folds < 2 or cfg.bootstrap < 1:
         raise VlaprobeError("--folds needs at least 2 and --bootstrap at least 1")
     check_output_folder(cfg.out)
-    data, atoms, layer = load_episodes(cfg)
-    result = evaluate(data, cfg, atoms, layer)
+    data, atoms, layer, tokens = load_episodes(cfg)
+    result = evaluate(data, cfg, atoms, layer, tokens)
     path = write_failures(cfg.out, result)
     print(json.dumps(asdict(result)) if cfg.json else f"{table(result)}\nwrote {path}")
     return 0

@@ -136,6 +136,10 @@ def check_train(cfg: TrainConfig, prefix: str = "") -> None:
         raise VlaprobeError(f"{f('probe.tol')} must be a positive finite number, got {p.tol}")
     at_least(p.max_iter, 1, f("probe.max_iter"))
     at_least(p.history, 1, f("probe.history"))
+    if not (math.isfinite(p.c_without_cv) and p.c_without_cv > 0):
+        raise VlaprobeError(
+            f"{f('probe.c_without_cv')} must be a positive finite number, got {p.c_without_cv}"
+        )
     if not (math.isfinite(p.memory_mb) and p.memory_mb > 0):
         raise VlaprobeError(f"{f('probe.memory_mb')} must be a positive finite number, got {p.memory_mb}")
     _between(p.threshold, 0, 1, f("probe.threshold"))

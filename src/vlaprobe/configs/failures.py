@@ -21,6 +21,10 @@ class FailuresConfig:
     stored ground-truth atoms (the cognition with perfect perception)."""
     layer: int | None = None
     """Layer of the hidden-state failure probe. Default: the middle layer."""
+    token_model: str | None = None
+    """Score token uncertainty: recompute every stored step's action-token distribution from the stored images
+    with this model, which must be the store's observer (its model_id, e.g. "tiny-libero"; see `vlaprobe info`).
+    Default: not scored (the store keeps the chosen token ids, not their probabilities)."""
     alpha: float = 0.1
     """Target false-alarm rate: the share of successful episodes the conformal band lets alarm."""
     folds: int = 5

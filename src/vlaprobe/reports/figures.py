@@ -116,27 +116,40 @@ def heatmap(
 
 @dataclass
 class Series:
-    """One line of a curve plot: values per layer with an optional 95% band."""
+    """One line of a curve plot: values per layer (or per ``x``) with an optional band (a 95% interval, or
+    quartiles)."""
 
     label: str
     value: np.ndarray
     low: np.ndarray | None = None
     high: np.ndarray | None = None
     style: str = "-"
+    x: np.ndarray | None = None
+    """The line's own x values (a ROC curve's false-positive rates); default: the plot's shared x."""
 
 
-def curves(panels: dict[str, list[Series]], layers: list[int], title: str, dpi: int) -> Rendered:
-    """One panel per metric, metric versus layer, each series a line with its interval as a band."""
+def curves(
+    panels: dict[str, list[Series]],
+    layers: list[int] | np.ndarray,
+    title: str,
+    dpi: int,
+    xlabel: str = "layer",
+    ylabel: str = "",
+) -> Rendered:
+    """One panel per metric, metric versus layer (or ``xlabel``), each series a line with its band."""
     n = len(panels)
     fig, axes = plt.subplots(1, n, figsize=(3.6 * n, 3.2), squeeze=False)
-    x = np.asarray(layers)
+    shared = np.asarray(layers)
     for ax, (metric, series) in zip(axes[0], panels.items(), strict=True):
         for s in series:
+            x = shared if s.x is None else np.asarray(s.x)
             (line,) = ax.plot(x, s.value, s.style, label=s.label, linewidth=1.4, markersize=3)
             if s.low is not None and s.high is not None:
                 ax.fill_between(x, s.low, s.high, color=line.get_color(), alpha=0.2, linewidth=0)
         ax.set_title(metric_label(metric), fontsize=9)
-        ax.set_xlabel("layer")
+        ax.set_xlabel(xlabel)
+        if ylabel:
+            ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=7)
     fig.suptitle(title, fontsize=10)

@@ -203,6 +203,25 @@ class OpenVLAPolicy:
                 )
         return out
 
+    def token_uncertainty(self, model_images: np.ndarray, instruction: str) -> tuple[np.ndarray, np.ndarray]:
+        """The action-token distribution of :meth:`steps` on preprocessed images (B, 224, 224, 3) uint8:
+        ((B, 2) float64: the mean over the 7 tokens of the entropy (nats) and of the top probability of the
+        softmax over the action bins, (B, 7) int64: the token ids the greedy decode chose, to check against
+        the stored ``action_tokens``). For token-uncertainty failure scores of stored episodes."""
+        cfg, ids = self.model.config, self.prompt_ids(instruction)
+        end, out, tokens = cfg.action_vocab_end, [], []
+        for start in range(0, len(model_images), BATCH):
+            chunk = model_images[start : start + BATCH]
+            pixels = torch.cat([self.pixel_values(m) for m in chunk])
+            for pred in self.model.predict_batch(pixels, ids, None):
+                logits = pred.step_logits[:, end - cfg.n_action_bins : end].double()
+                logp = torch.log_softmax(logits, dim=-1)
+                entropy = -(logp.exp() * logp).sum(-1).mean()
+                top = logp.max(-1).values.exp().mean()
+                out.append([float(entropy), float(top)])
+                tokens.append(pred.action_token_ids.cpu().numpy().astype(np.int64))
+        return np.array(out, np.float64).reshape(-1, 2), np.array(tokens, np.int64).reshape(-1, 7)
+
     def observe(self, model_images: np.ndarray, instruction: str) -> np.ndarray:
         """Hidden states of preprocessed images, (B, 224, 224, 3) uint8 → (B, layers, hidden) float32: the
         prompt pass of :meth:`step` batched, without decoding (re-observing stored episodes with another model,
