@@ -262,7 +262,9 @@ def run_case(argv: list[str], inputs: list[Path]) -> tuple[str, str]:
             code = main(argv)
         outcome = "accepted" if code == 0 else "refused"
         if argv[:1] == ["doctor"] and code == 1 and "✗" in out.getvalue():
-            outcome = "accepted"  # doctor's verdict "not ready" (exit 1, the failed checks on stdout), not an error
+            outcome = (
+                "accepted"  # doctor's verdict "not ready" (exit 1, the failed checks on stdout), not an error
+            )
     except Accepted:
         outcome, code = "accepted", 0
     except Hang:

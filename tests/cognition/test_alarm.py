@@ -6,15 +6,18 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
+import pytest
 from tests.collection.fakes import make_fake_worker
 
 from vlaprobe.cognition.alarm import AlarmRule, CognitionSupervisor
 from vlaprobe.cognition.core import CognitionStep, Violation
 from vlaprobe.collection.collect import collect
 from vlaprobe.collection.store import ActivationStore
+from vlaprobe.collection.takeovers import matched_counts
 from vlaprobe.configs.collect import CollectConfig
 from vlaprobe.configs.env import EnvConfig
 from vlaprobe.configs.takeover import TakeoverConfig
+from vlaprobe.errors import VlaprobeError
 from vlaprobe.rollout.takeover import Takeovers
 
 
@@ -70,3 +73,9 @@ def test_random_takeovers_match_the_alarm_runs_counts(tmp_path: Path) -> None:
     assert matched.keys() == fired.keys()
     assert {k: len(t.items) for k, t in matched.items()} == {k: len(t.items) for k, t in fired.items()}
     assert all(i.reason == "random" for t in matched.values() for i in t.items)
+    meta = ActivationStore.open(alarm.out).metadata
+    assert matched_counts(alarm.out, meta.suite, meta.model_id).keys() == fired.keys()
+    with pytest.raises(VlaprobeError, match="suite libero_spatial, this collection's is libero_goal"):
+        matched_counts(alarm.out, "libero_goal", meta.model_id)
+    with pytest.raises(VlaprobeError, match="store of model"):
+        matched_counts(alarm.out, meta.suite, "another-model")

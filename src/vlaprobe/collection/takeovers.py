@@ -21,9 +21,17 @@ MakeSupervisor = Callable[[TaskEnv, TakeoverConfig], Supervisor]
 """Builds the alarm's supervisor of one episode: (simulator, settings)."""
 
 
-def matched_counts(store: Path) -> dict[tuple[int, int], tuple[int, int]]:
-    """(task, init) -> (takeovers, rows) of every episode of an alarm run's store."""
+def matched_counts(store: Path, suite: str, model_id: str) -> dict[tuple[int, int], tuple[int, int]]:
+    """(task, init) -> (takeovers, rows) of every episode of an alarm run's store, which must be of this
+    collection's suite and model (a task index of another suite names another task)."""
     opened = ActivationStore.open(store)
+    meta = opened.metadata
+    for what, theirs, ours in (("suite", meta.suite, suite), ("model", meta.model_id, model_id)):
+        if theirs != ours:
+            raise VlaprobeError(
+                f"--takeover-match {store} is a store of {what} {theirs}, this collection's is {ours}; "
+                "match an alarm run of the same suite and model"
+            )
     out: dict[tuple[int, int], tuple[int, int]] = {}
     for info in opened.episodes():
         raw = opened.episode(info.key).attrs.get("takeovers")

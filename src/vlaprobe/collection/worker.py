@@ -131,11 +131,15 @@ class Worker:
             raise VlaprobeError("--takeover random needs --takeover-match STORE (the alarm run to match)")
         self._make_supervisor = make_supervisor
         match = cfg.intervention.takeover_match
-        self._counts = matched_counts(match) if mode == "random" and match is not None else {}
         import torch
 
         torch.set_num_threads(cfg.threads or default_threads(cfg.workers))
         self.policy = make_policy(cfg.policy, cfg.env.suite)
+        self._counts = (
+            matched_counts(match, cfg.env.suite, self.policy.model_id)
+            if mode == "random" and match is not None
+            else {}
+        )
         envs = EnvCache(lambda task: make_env(task, cfg.env), on_new=self._check_vocabulary)
         # The expert does not read the model: it observes each episode afterwards, in batches.
         self._deferred = (
