@@ -29,6 +29,7 @@ from vlaprobe.collection.writer import DEFINING, LAYOUTS_BEFORE, StoreWriter
 from vlaprobe.configs.collect import CollectConfig
 from vlaprobe.configs.env import EnvConfig
 from vlaprobe.configs.policy import PolicyConfig
+from vlaprobe.configs.takeover import TakeoverConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.symbols import Labeler
 
@@ -164,6 +165,12 @@ CASES: dict[str, tuple[dict[str, Any], dict[str, Any], str, Any]] = {
     ),
     "first_init": ({}, {"first_init": 2}, "--first-init is 0 in the store but 2", None),
     "keep_failed": ({}, {"keep_failed": True}, "--keep-failed is false in the store but true", None),
+    "takeover": (
+        {"driver": "policy"},
+        {"driver": "policy", "intervention": TakeoverConfig(takeover="alarm")},
+        '--takeover and its settings is "" in the store but "alarm steps=60',
+        None,
+    ),
 }
 
 
