@@ -406,7 +406,7 @@ def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.Captu
             ["run", "--suite", "libero_object", "--out", "OUT"],
             "--suite libero_object: `vlaprobe run` runs on",
         ),
-        (["serve", "--suite", "libero_10", "--probes", "OUT"], "--suite libero_10: `vlaprobe serve` runs on"),
+        (["serve", "--suite", "libero_90", "--probes", "OUT"], "--suite libero_90: `vlaprobe serve` runs on"),
     ],
 )
 def test_suite_inputs_are_one_line(

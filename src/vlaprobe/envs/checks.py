@@ -108,6 +108,6 @@ def precheck(cfg: object) -> None:
     elif isinstance(cfg, CollectConfig):
         check_episode_suite(cfg.env, "collect", COLLECT_SUITES)
     elif isinstance(cfg, ServeConfig):
-        check_episode_suite(cfg.env, "serve")
+        check_episode_suite(cfg.env, "serve", COLLECT_SUITES)
     elif isinstance(cfg, RunConfig):
         check_episode_suite(cfg.collect.env, "run")
