@@ -403,8 +403,8 @@ def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.Captu
             "--perturb needs a pick-and-place goal (one On(a, b) between objects); libero_object task 0's",
         ),
         (
-            ["run", "--suite", "libero_object", "--out", "OUT"],
-            "--suite libero_object: `vlaprobe run` runs on",
+            ["run", "--suite", "libero_90", "--out", "OUT"],
+            "--suite libero_90: `vlaprobe run` runs on",
         ),
         (["serve", "--suite", "libero_90", "--probes", "OUT"], "--suite libero_90: `vlaprobe serve` runs on"),
     ],
