@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 
-from vlaprobe.cognition.plan import stored_task_goal, task_goal
 from vlaprobe.configs.collect import DriverName
 from vlaprobe.envs.base import TaskEnv
 from vlaprobe.errors import VlaprobeError
@@ -128,7 +127,7 @@ class LiveSource:
             max_steps=max_steps,
             source="live",
             suite=sim.suite,
-            goal=task_goal(env.goal_conjunction, env.scene),
+            goal=env.goal,
             atoms={"object": list(vocab.object_atoms), "action": list(vocab.action_atoms)},
         )
 
@@ -199,6 +198,8 @@ class StoreEpisodes:
             raise VlaprobeError(f"no stored episode {episode_id!r}; GET /api/episodes lists them")
         self.verify(info.key)
         attrs = self.store.episode(info.key).attributes
+        if attrs.goal is None:
+            raise VlaprobeError(f"stored episode {info.key} records no task goal; collect it again")
         return EpisodeSpec(
             task=info.task,
             instruction=attrs.instruction,
@@ -207,7 +208,7 @@ class StoreEpisodes:
             max_steps=info.length,
             source="store",
             suite=self.store.suite,
-            goal=stored_task_goal(self.store.suite, info.task, attrs, f"stored episode {info.key}"),
+            goal=attrs.goal,
             atoms=self.atoms,
             key=info.key,
         )
