@@ -79,3 +79,15 @@ def test_random_takeovers_match_the_alarm_runs_counts(tmp_path: Path) -> None:
         matched_counts(alarm.out, "libero_goal", meta.model_id)
     with pytest.raises(VlaprobeError, match="store of model"):
         matched_counts(alarm.out, meta.suite, "another-model")
+
+
+def test_takeover_probes_must_read_the_collecting_models_hidden_states(tmp_path: Path) -> None:
+    from tests.collection.fakes import FakeEnv, fake_probed_run
+
+    fake_probed_run(tmp_path, shuffled_control=False)
+    env = FakeEnv(0, EnvConfig(max_steps=6, image_size=16))
+    cfg = TakeoverConfig(takeover="alarm", takeover_probes=tmp_path / "probes")
+    model = ActivationStore.open(tmp_path / "activations").metadata.model_id
+    assert CognitionSupervisor(env, cfg, model).readout is not None  # type: ignore[arg-type]
+    with pytest.raises(VlaprobeError, match="another-model"):
+        CognitionSupervisor(env, cfg, "another-model")  # type: ignore[arg-type]

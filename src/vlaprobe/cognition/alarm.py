@@ -85,11 +85,13 @@ class AlarmRule:
 class CognitionSupervisor:
     """The alarm of one collected episode: a cognition on its records' atoms (or the probes' predictions)."""
 
-    def __init__(self, env: TaskEnv, cfg: TakeoverConfig) -> None:
+    def __init__(self, env: TaskEnv, cfg: TakeoverConfig, model_id: str) -> None:
+        """``model_id``: the model whose hidden states the records carry (``--takeover-probes`` must be its)."""
         from vlaprobe.cognition.readout import ProbeReadout
 
         vocab = env.labeler.vocabulary
-        self.readout = None if cfg.takeover_probes is None else ProbeReadout.load(cfg.takeover_probes)
+        probes = cfg.takeover_probes
+        self.readout = None if probes is None else ProbeReadout.load(probes, model_id=model_id)
         probed = None if self.readout is None else self.readout.probed
         self.cognition = Cognition(vocab.object_atoms, vocab.action_atoms, env.goal, probed=probed)
         self.rule = AlarmRule(cfg.takeover_stall, cfg.takeover_hold, cfg.takeover_most)

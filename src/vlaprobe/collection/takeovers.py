@@ -17,8 +17,9 @@ from vlaprobe.envs.base import TaskEnv
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.rollout.takeover import RandomTakeovers, Supervisor, Takeovers
 
-MakeSupervisor = Callable[[TaskEnv, TakeoverConfig], Supervisor]
-"""Builds the alarm's supervisor of one episode: (simulator, settings)."""
+MakeSupervisor = Callable[[TaskEnv, TakeoverConfig, str], Supervisor]
+"""Builds the alarm's supervisor of one episode: (simulator, settings, the observing model's id: probes that
+read the hidden states must be that model's)."""
 
 
 def matched_counts(store: Path, suite: str, model_id: str) -> dict[tuple[int, int], tuple[int, int]]:

@@ -252,7 +252,7 @@ class Worker:
         if cfg.takeover == "random":
             return random_supervisor(self._counts, unit.task, unit.init, seed, cfg)
         if cfg.takeover == "alarm" and self._make_supervisor is not None:
-            return self._make_supervisor(env, cfg)
+            return self._make_supervisor(env, cfg, self.policy.model_id)
         return None
 
     def close(self) -> None:
