@@ -114,6 +114,10 @@ def heatmap(
     return _render(fig, dpi)
 
 
+PANELS_PER_ROW = 4
+"""The most panels :func:`curves` puts side by side."""
+
+
 @dataclass
 class Series:
     """One line of a curve plot: values per layer (or per ``x``) with an optional band (a 95% interval, or
@@ -136,11 +140,16 @@ def curves(
     xlabel: str = "layer",
     ylabel: str = "",
 ) -> Rendered:
-    """One panel per metric, metric versus layer (or ``xlabel``), each series a line with its band."""
+    """One panel per metric, metric versus layer (or ``xlabel``), each series a line with its band; at most
+    ``PANELS_PER_ROW`` panels a row, so that many panels stay readable at the page's width."""
     n = len(panels)
-    fig, axes = plt.subplots(1, n, figsize=(3.6 * n, 3.2), squeeze=False)
+    cols = min(n, PANELS_PER_ROW)
+    rows = -(-n // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 3.2 * rows), squeeze=False)
+    for ax in axes.flat[n:]:
+        ax.set_axis_off()
     shared = np.asarray(layers)
-    for ax, (metric, series) in zip(axes[0], panels.items(), strict=True):
+    for ax, (metric, series) in zip(axes.flat[:n], panels.items(), strict=True):
         for s in series:
             x = shared if s.x is None else np.asarray(s.x)
             (line,) = ax.plot(x, s.value, s.style, label=s.label, linewidth=1.4, markersize=3)
