@@ -147,7 +147,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     cfg = TrainConfig(bootstrap=200, auprc_bootstrap=0, shuffled_permutations=1, conditional=True)
     on = train_on_data(data, cfg, tmp_path_factory.mktemp("on"))
     off = train_on_data(data, dataclasses.replace(cfg, conditional=False), tmp_path_factory.mktemp("off"))
-    assert not TrainConfig().conditional  # off by default: it costs more than the probes
+    assert not TrainConfig().conditional  # off by default in `vlaprobe train`
     return on, off
 
 
