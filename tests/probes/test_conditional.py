@@ -25,8 +25,10 @@ from vlaprobe.probes.conditional import (
     conditional_fit,
     evaluate_conditional,
 )
+from vlaprobe.probes.regularization import ColumnGroups
 from vlaprobe.probes.results import ConditionalProbe, read_evaluation
 from vlaprobe.probes.split import make_folds, rows_of
+from vlaprobe.probes.trainer import fit_probes
 
 TASKS, EPISODES, STEPS, HIDDEN = 4, 6, 40, 12
 
@@ -46,18 +48,18 @@ def _conditional(
 ) -> tuple[dict[str, ConditionalProbe], dict[str, ConditionalFit], list[tuple[np.ndarray, np.ndarray]]]:
     episode, episode_tasks = _episodes()
     fold_rows = _split(episode_tasks, episode)
-    fits = conditional_fit(
-        hidden, episode, episode_tasks, labels, fold_rows, cfg, 1, np.zeros(labels.shape[1])
-    )
+    groups = ColumnGroups(episode, episode_tasks, np.zeros(labels.shape[1]), np.ones(labels.shape[1], bool))
+    probes = [fit_probes(hidden, labels, train, cfg.probe, 1, groups) for train, _ in fold_rows]
+    fits = conditional_fit(hidden, episode, episode_tasks, labels, fold_rows, cfg, probes)
     test = fold_rows[0][1]
     _, groups = np.unique(episode[test], return_inverse=True)
     weights = bootstrap_weights(int(groups.max()) + 1, 300, 2)
     cols = np.arange(labels.shape[1])
-    probes = {
+    scored = {
         name: evaluate_conditional(f, cols, labels[test], groups, int(groups.max()) + 1, 0.0, weights, [cols])
         for name, f in fits.items()
     }
-    return probes, fits, fold_rows
+    return scored, fits, fold_rows
 
 
 def test_features_are_the_baselines_cells() -> None:
@@ -111,9 +113,12 @@ def test_the_conditional_probe_matches_scikit_learn() -> None:
     x = np.concatenate([scaler.transform(noise[0]), onehot], 1)
     ours = combined_features(torch.from_numpy(noise), train, torch.from_numpy(onehot))[0].numpy()
     np.testing.assert_allclose(ours, x, atol=1e-4)
+    # The one-hot block is unpenalised: scikit-learn has one penalty for every feature, so scale those
+    # columns by 100 (their penalty in the original units shrinks by 100^2 = 1e4: unpenalised in effect).
+    x[:, -onehot.shape[1] :] *= 100
     expected = []
     for a in range(labels.shape[1]):
-        model = LogisticRegression(C=0.5, tol=1e-8, max_iter=5000).fit(x[train], labels[train, a])
+        model = LogisticRegression(C=0.5, tol=1e-8, max_iter=20000).fit(x[train], labels[train, a])
         expected.append(balanced_accuracy_score(labels[test, a], model.predict(x[test])))
         agree = (fits["task_time"].combined[0, :, a].numpy() > 0) == model.predict(x[test])
         assert agree.mean() > 0.995
@@ -142,7 +147,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     cfg = TrainConfig(bootstrap=200, auprc_bootstrap=0, shuffled_permutations=1, conditional=True)
     on = train_on_data(data, cfg, tmp_path_factory.mktemp("on"))
     off = train_on_data(data, dataclasses.replace(cfg, conditional=False), tmp_path_factory.mktemp("off"))
-    assert not TrainConfig().conditional  # off by default: it costs more than the probes
+    assert not TrainConfig().conditional  # off by default in `vlaprobe train`
     return on, off
 
 
@@ -154,6 +159,7 @@ def test_train_records_conditional_probing_and_can_skip_it(trained: tuple[Path, 
         for p in h.conditional().values():
             assert len(p.combined.value) == len(on.layers) == len(p.gain.value) == len(p.c)
             assert len(p.features.value) == 1
+            assert p.c == h.fit.c and p.c_features is None  # the probes' C; the cells unpenalised
             for i, g in enumerate(p.gain.value):
                 if g is not None:
                     assert g == pytest.approx(p.combined.value[i] - p.features.value[0], abs=2e-5)

@@ -213,3 +213,28 @@ def test_the_line_search_measures_the_change_of_the_loss_not_a_difference_of_two
         if scale == 1e-6:  # where the difference of two float32 losses is mostly round-off
             naive = (prob.data_loss(z + delta) - prob.data_loss(z)).double()
             assert (abs(naive - exact) > 0.05 * abs(exact)).any()
+
+
+def test_a_per_feature_penalty_leaves_the_free_features_unpenalised(planted: dict) -> None:
+    from vlaprobe.probes import lbfgs
+
+    data, train, y = planted["data"], planted["train"], planted["y"]
+    x = data.hidden[:2, train].float()
+    x = (x - x.mean(1, keepdim=True)) / x.std(1, keepdim=True)
+    targets = torch.as_tensor(y[train], dtype=torch.float32)
+    l2 = torch.full((2, y.shape[1]), 0.05)
+    w_all, b_all, _ = lbfgs.fit_logistic(x, targets, l2, tol=1e-6, max_iter=1000)
+    ones = torch.ones(x.shape[2])
+    w_ones, b_ones, _ = lbfgs.fit_logistic(x, targets, l2, tol=1e-6, max_iter=1000, penalized=ones)
+    assert torch.equal(w_all, w_ones) and torch.equal(b_all, b_ones)  # all 1: the plain penalty, bit for bit
+    free = ones.clone()
+    free[:8] = 0
+    w, b, conv = lbfgs.fit_logistic(x, targets, l2, tol=1e-6, max_iter=1000, penalized=free)
+    assert conv.converged.all()
+    # Optimality, from the objective's definition: the data term's gradient is 0 on the free features and
+    # -l2 w on the penalised ones.
+    z = torch.einsum("lnh,lhk->lnk", x.double(), w.double()) + b.double()[:, None]
+    grad = torch.einsum("lnh,lnk->lhk", x.double(), torch.sigmoid(z) - targets.double()) / len(train)
+    np.testing.assert_allclose(grad[:, :8], 0, atol=2e-6)
+    np.testing.assert_allclose(grad[:, 8:], -0.05 * w.double()[:, 8:], atol=2e-6)
+    assert (w[:, :8].abs().mean() > w_all[:, :8].abs().mean()).item()  # freed weights grow

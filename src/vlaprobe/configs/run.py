@@ -21,7 +21,8 @@ def _default_collect() -> CollectConfig:
 
 def _default_train() -> TrainConfig:
     # The run answers whether any layer adds information beyond task x time, so it fits the conditional
-    # probes (about 3x the observer's probe-fitting time; `vlaprobe train` alone leaves them off).
+    # probes (one warm-started fit per baseline and fold, no C search of their own: docs/timings.md;
+    # `vlaprobe train` alone leaves them off).
     return TrainConfig(conditional=True)
 
 

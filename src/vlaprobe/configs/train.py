@@ -110,8 +110,8 @@ class TrainConfig:
     """Resamples for the AUPRC intervals (costlier: scores are re-ranked per resample); 0 skips them."""
     conditional: bool = False
     """Conditional probing (``--conditional``): per layer and head, probes on the task and the task x time
-    one-hot cells with and without the standardised hidden state, same split, C search and intervals; the gain
-    is what the layer adds beyond the baseline (``conditional_task``, ``conditional_task_time`` in
-    ``evaluation.json``). Off by default: it costs more than the probes themselves (docs/probing.md)."""
+    one-hot cells (unpenalised) with and without the standardised hidden state (penalised with the probes' C),
+    same split and intervals; the gain is what the layer adds beyond the baseline (``conditional_task``,
+    ``conditional_task_time`` in ``evaluation.json``). Off by default in ``vlaprobe train`` (docs/probing.md)."""
     seed: int = 0
     """Seed of the split, probe minibatch order, label shuffling and bootstrap (each derives its own)."""

@@ -5,10 +5,12 @@ representation adds beyond baseline features is the gain of a probe on [baseline
 over a probe on [baseline features] alone. Here the baseline features are the one-hot cell of a row under
 the task baseline (its task) and the task x time baseline (task x decile of normalised episode time, the
 cells of :mod:`vlaprobe.probes.baselines`), and the representation is the layer's hidden state,
-standardised with the training split's statistics (the one-hot columns stay 0/1). Both probes are fit like
-the probes (:func:`~vlaprobe.probes.trainer.fit_probes`: the same C search per layer and head, the same
-batched solver, the same seeds and folds) and scored on the same held-out rows, with the same bootstrap
-resamples: the gain's interval is paired.
+standardised with the training split's statistics (the one-hot columns stay 0/1). The one-hot block is
+unpenalised in both probes (the features-only probe is then the cells' log-odds, the cell majority's
+scores); the hidden-state block is penalised with the C the probes' own search chose at that layer and head
+on the same fold, so no second search is run. Both are fit by the probes' batched solver
+(:func:`~vlaprobe.probes.trainer.fit_probes`) on the same folds and scored on the same held-out rows, with
+the same bootstrap resamples: the gain's interval is paired.
 """
 
 from __future__ import annotations
@@ -22,9 +24,8 @@ import torch
 from vlaprobe.configs.train import TrainConfig
 from vlaprobe.probes.baselines import TIME_BINS, time_bin
 from vlaprobe.probes.metrics import atom_metrics, summarize
-from vlaprobe.probes.regularization import ColumnGroups
 from vlaprobe.probes.results import ConditionalProbe, level, number
-from vlaprobe.probes.trainer import fit_probes
+from vlaprobe.probes.trainer import LinearProbes, fit_probes
 
 CONDITIONAL_BASELINES = ("task", "task_time")
 """Baselines conditioned on, coarsest first (names of :data:`~vlaprobe.probes.baselines.BASELINES`)."""
@@ -75,10 +76,8 @@ class ConditionalFit:
     """(1, rows, atoms) logits of the probe on the baseline features alone."""
     combined: torch.Tensor
     """(layers, rows, atoms) logits of the probe on baseline features + hidden state."""
-    c_features: np.ndarray
-    """(1, atoms) C of the features-only probes (the last fold's)."""
     c: np.ndarray
-    """(layers, atoms) C of the combined probes (the last fold's)."""
+    """(layers, atoms) C of the combined probes' hidden-state block: the probes' own (the last fold's)."""
 
 
 def conditional_fit(
@@ -88,36 +87,40 @@ def conditional_fit(
     targets: np.ndarray,
     fold_rows: list[tuple[np.ndarray, np.ndarray]],
     cfg: TrainConfig,
-    seed: int,
-    column_head: np.ndarray,
+    fold_probes: list[LinearProbes],
 ) -> dict[str, ConditionalFit]:
-    """Fit and score the conditional probes of every baseline on each fold (seed ``seed + fold``, as the
-    probes); ``column_head`` groups the target columns that share a C, as for the probes."""
+    """Fit and score the conditional probes of every baseline on each fold.
+
+    ``fold_probes``: each fold's probes of ``targets`` (from :func:`~vlaprobe.probes.evaluate.cross_fit`). The
+    combined probe penalises its hidden-state block with the C those probes chose at each layer and head and
+    leaves the one-hot block unpenalised, as the features-only probe is: on a hidden state that adds nothing
+    the two probes then coincide (gain 0), whatever C the probes needed. It starts from the fold's probe
+    (hidden-state weights and bias; the one-hot weights at 0): the same minimiser, fewer iterations.
+    """
     eval_rows = np.sort(np.concatenate([te for _, te in fold_rows]))
-    groups = ColumnGroups(
-        episode=np.asarray(episode),
-        episode_tasks=np.asarray(episode_tasks),
-        group=np.asarray(column_head),
-        scored=np.ones(len(column_head), bool),
-        across_tasks=cfg.split.by == "leave-one-task-out",
-    )
     probe_cfg = dataclasses.replace(cfg.probe, standardize=False)  # standardised here, one-hot kept 0/1
-    k, out = targets.shape[1], {}
+    layers, size, k, out = hidden.shape[0], hidden.shape[2], targets.shape[1], {}
     for name in CONDITIONAL_BASELINES:
         onehot = torch.as_tensor(baseline_features(episode, episode_tasks, name))
+        cells = onehot.shape[1]
+        free = torch.zeros(cells)
+        penalized = torch.cat([torch.ones(size), free])
         features = torch.empty((1, len(eval_rows), k))
-        combined = torch.empty((hidden.shape[0], len(eval_rows), k))
-        c_features, c = np.zeros((1, k)), np.zeros((hidden.shape[0], k))
-        for i, (train_rows, test_rows) in enumerate(fold_rows):
+        combined = torch.empty((layers, len(eval_rows), k))
+        c = np.zeros((layers, k))
+        for (train_rows, test_rows), probes in zip(fold_rows, fold_probes, strict=True):
             at = np.searchsorted(eval_rows, test_rows)
-            base = fit_probes(onehot[None], targets, train_rows, probe_cfg, seed + i, groups)
+            base = fit_probes(onehot[None], targets, train_rows, probe_cfg, 0, c=1.0, penalized=free)
             features[:, at] = base.logits(onehot[None], test_rows)
+            assert probes.c is not None
             x = combined_features(hidden, train_rows, onehot)
-            full = fit_probes(x, targets, train_rows, probe_cfg, seed + i, groups)
+            init = (torch.cat([probes.weight, torch.zeros((layers, cells, k))], 1), probes.bias)
+            full = fit_probes(
+                x, targets, train_rows, probe_cfg, 0, c=probes.c, penalized=penalized, init=init
+            )
             combined[:, at] = full.logits(x, test_rows)
-            assert base.c is not None and full.c is not None
-            c_features, c = base.c, full.c
-        out[name] = ConditionalFit(name, features, combined, c_features, c)
+            c = probes.c
+        out[name] = ConditionalFit(name, features, combined, c)
     return out
 
 
@@ -150,7 +153,7 @@ def evaluate_conditional(
         features=level(summarize(f_point, f_res, atom_groups)["layer"]),
         combined=level(summarize(c_point, c_res, atom_groups)["layer"]),
         gain=level(gain),
-        c_features=number(fit.c_features[0, cols[0]]) if len(cols) else None,
+        c_features=None,
         c=[number(v) for v in fit.c[:, cols[0]]] if len(cols) else [],
     )
 

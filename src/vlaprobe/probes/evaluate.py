@@ -55,6 +55,8 @@ class CrossFit:
     """Episode positions of the groups."""
     probes: LinearProbes
     """The last fold's probes (the real columns only)."""
+    fold_probes: list[LinearProbes]
+    """Every fold's probes (the real columns only; the last is ``probes``), e.g. for conditional probing."""
     train_frequency: np.ndarray
     """(atoms,) share of true rows in the training splits (mean over folds)."""
     column_head: np.ndarray
@@ -91,7 +93,7 @@ def cross_fit(
     control = torch.empty((permutations, *logits.shape)) if permutations else None
     baselines = {name: np.empty((len(eval_rows), k), bool) for name in BASELINES}
     train_frequency = np.zeros(k)
-    probes: LinearProbes | None = None
+    fold_probes: list[LinearProbes] = []
     groups = column_groups(data, column_head, permutations, cfg.split.by == "leave-one-task-out")
     for i, (train_rows, test_rows) in enumerate(fold_rows):
         blocks = [targets]
@@ -112,8 +114,7 @@ def cross_fit(
         for name in BASELINES:
             baselines[name][at] = predicted[name]
         train_frequency += targets[train_rows].mean(0) / len(fold_rows)
-        probes = fitted.columns(slice(0, k))
-    assert probes is not None
+        fold_probes.append(fitted.columns(slice(0, k)))
     episodes, groups = np.unique(data.episode[eval_rows], return_inverse=True)
     return CrossFit(
         eval_rows,
@@ -122,7 +123,8 @@ def cross_fit(
         baselines,
         groups,
         episodes,
-        probes,
+        fold_probes[-1],
+        fold_probes,
         train_frequency,
         np.asarray(column_head),
     )

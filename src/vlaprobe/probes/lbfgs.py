@@ -2,10 +2,10 @@
 
 Every (layer, column) pair is its own binary logistic regression with objective
 
-    f(w, b) = sum_i s_i [softplus(z_i) - y_i z_i] / n  +  (l2 / 2) ||w||^2,     z_i = x_i . w + b
+    f(w, b) = sum_i s_i [softplus(z_i) - y_i z_i] / n  +  (l2 / 2) sum_j m_j w_j^2,     z_i = x_i . w + b
 
 (``s_i``: row weights, e.g. a fold's membership or class balancing; ``n``: the rows that count; the bias is
-not penalised). With ``l2 = 1 / (C n)`` this is scikit-learn's ``LogisticRegression(C=C)`` divided by
+not penalised, nor the features with ``m_j = 0``; by default every ``m_j`` is 1). With ``l2 = 1 / (C n)`` this is scikit-learn's ``LogisticRegression(C=C)`` divided by
 ``C n``: the same minimiser. The problems never interact, but they share the data, so one ``baddbmm`` gives
 every column's logits and one ``bmm`` every weight gradient. Each column runs its own L-BFGS (its own
 history, step length and stopping point): the two-loop recursion is a handful of per-column dot products,
@@ -68,6 +68,11 @@ class _Problem:
     inv_n: torch.Tensor  # (K,) 1 / rows that count
     l2: torch.Tensor  # (L, K)
     center: torch.Tensor  # (L, K or 1, H) each column's weighted feature mean
+    penalized: torch.Tensor | None = None  # (H,) 1 for a penalised feature, 0 for a free one; None: all 1
+
+    def penalized_part(self, w: torch.Tensor) -> torch.Tensor:
+        """``w`` (..., H) with the free features' entries zeroed: what the L2 term sees."""
+        return w if self.penalized is None else w * self.penalized
 
     def logits(self, p: torch.Tensor) -> torch.Tensor:
         """(L, n, K) logits of parameters ``p`` (L, K, H + 1), the bias last, on centred features:
@@ -102,11 +107,12 @@ class _Problem:
         torch.bmm(r.transpose(1, 2), self.x, out=g[:, :, :-1])
         g[:, :, -1] = r.sum(1)
         g[:, :, :-1].sub_(self.center * g[:, :, -1:])
-        g[:, :, :-1].add_(p[:, :, :-1] * self.l2[..., None])
+        g[:, :, :-1].add_(self.penalized_part(p[:, :, :-1]) * self.l2[..., None])
         return g
 
     def penalty(self, p: torch.Tensor) -> torch.Tensor:
-        return 0.5 * self.l2 * (p[:, :, :-1] ** 2).sum(-1)
+        w = p[:, :, :-1]
+        return 0.5 * self.l2 * _dot(self.penalized_part(w), w)
 
     def select(self, keep: torch.Tensor) -> _Problem:
         """The same problem for the columns ``keep`` (an index tensor) only; the features are shared."""
@@ -119,6 +125,7 @@ class _Problem:
             self.inv_n[keep],
             self.l2.index_select(1, keep),
             center,
+            self.penalized,
         )
 
 
@@ -158,8 +165,8 @@ def _line_search(
     that a backtracking column does not cost a pass over every column's logits.
     """
     dz = prob.logits(d)
-    pw, dw = p[:, :, :-1], d[:, :, :-1]
-    wd, dd = _dot(pw, dw), _dot(dw, dw)
+    pw, dw = prob.penalized_part(p[:, :, :-1]), d[:, :, :-1]
+    wd, dd = _dot(pw, dw), _dot(prob.penalized_part(dw), dw)
     pending = gd < 0
     accepted = torch.zeros_like(step)
     f_new = f.clone()
@@ -300,13 +307,16 @@ def fit_logistic(
     history: int = 10,
     memory_mb: float = 1024,
     init: tuple[torch.Tensor, torch.Tensor] | None = None,
+    penalized: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, Convergence]:
     """Fit every column of ``y`` on every layer of ``x``; return (weight (L, H, K), bias (L, K), convergence).
 
     ``x`` float32 (layers, rows, hidden); ``y`` float (rows, columns) in {0, 1}; ``l2`` (layers, columns) the
     penalty per problem; ``weight`` optional (rows, columns) row weights (0 leaves a row out of a column's
     problem; ``n`` counts the rows with a weight). Starts at ``init`` (weight (L, H, K), bias (L, K)), e.g. the
-    solution for a stronger penalty, else at w = 0, b = the weighted log-odds. On a CPU the layers are solved
+    solution for a stronger penalty, else at w = 0, b = the weighted log-odds. ``penalized`` optional (hidden,)
+    0/1: the L2 term covers only the features marked 1 (conditional probing leaves its baseline one-hot
+    block free). On a CPU the layers are solved
     one at a time, so that the columns that stopped leave the working set per layer; on an accelerator in
     chunks of layers that fit ``memory_mb``.
     """
@@ -333,7 +343,8 @@ def fit_logistic(
                 center = xs.mean(1, keepdim=True)  # (L, 1, H)
             else:
                 center = torch.einsum("nk,lnh->lkh", weight, xs) / total.clamp_min(1e-12)[None, :, None]
-            prob = _Problem(xs, y, weight, inv_n, l2[part].to(x.device, torch.float32), center)
+            mask = None if penalized is None else penalized.to(x.device, torch.float32)
+            prob = _Problem(xs, y, weight, inv_n, l2[part].to(x.device, torch.float32), center, mask)
             p = torch.zeros((part.stop - part.start, k, hidden + 1), device=x.device)
             if init is None:
                 p[:, :, -1] = torch.logit(freq)

@@ -112,9 +112,9 @@ class BestLayer:
 @dataclass
 class ConditionalProbe:
     """Conditional probing (Hewitt et al. 2021) over one baseline: a probe on the baseline's features (one-hot
-    cells) against one on those features plus the standardised hidden state, per layer, same split, C search,
-    solver and bootstrap resamples as the probes. The gain is the information the layer adds beyond the
-    baseline."""
+    cells, unpenalised) against one on those features plus the standardised hidden state (penalised with the
+    probes' C at that layer), per layer, same split, solver and bootstrap resamples as the probes. The gain is
+    the information the layer adds beyond the baseline."""
 
     baseline: str
     """``task`` or ``task_time`` (:data:`~vlaprobe.probes.baselines.BASELINES`)."""
@@ -126,9 +126,9 @@ class ConditionalProbe:
     gain: Level
     """(layers,) combined minus features, per resample (paired)."""
     c_features: float | None
-    """C of the baseline-features probe (the last fold's)."""
+    """None: the cells are unpenalised (files written before that hold the C a search chose for them)."""
     c: Nested
-    """(layers,) C of the combined probes (the last fold's)."""
+    """(layers,) C of the combined probes' hidden-state block: the probes' (the last fold's)."""
 
 
 @dataclass

@@ -123,8 +123,7 @@ def train_on_data(
             targets,
             fold_rows,
             cfg,
-            seeds["probe"],
-            column_head,
+            fitted.fold_probes,
         )
     conditioned = time.perf_counter()
     # 4. Evaluate everything on the same bootstrap resamples of test episodes.

@@ -95,14 +95,18 @@ def fit_probes(
     cfg: ProbeConfig,
     seed: int,
     groups: ColumnGroups | None = None,
-    c: float | None = None,
+    c: float | np.ndarray | None = None,
+    *,
+    penalized: torch.Tensor | None = None,
+    init: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> LinearProbes:
     """Fit one multi-label probe per layer on ``rows`` of ``hidden`` (layers, steps, hidden).
 
-    ``targets`` is bool/float (steps, atoms) over all steps; only ``rows`` are read. C is ``c`` when given,
-    the single value of ``cfg.c_grid``, or chosen per layer and column group by cross-validation over the
-    training episodes (needs ``groups``). Class balancing (``cfg.balance``) weights positives by the
-    training negative/positive ratio.
+    ``targets`` is bool/float (steps, atoms) over all steps; only ``rows`` are read. C is ``c`` when given
+    (one value, or one per (layer, atom)), the single value of ``cfg.c_grid``, or chosen per layer and column
+    group by cross-validation over the training episodes (needs ``groups``). Class balancing (``cfg.balance``)
+    weights positives by the training negative/positive ratio. ``penalized`` and ``init``: as
+    :func:`~vlaprobe.probes.lbfgs.fit_logistic`'s.
     """
     device = resolve_device(cfg.device)
     rows = np.sort(np.asarray(rows))
@@ -113,7 +117,8 @@ def fit_probes(
     num_layers, n = x.shape[0], x.shape[1]
     cv = None
     if c is not None or len(cfg.c_grid) == 1:
-        per_column = np.full((num_layers, y.shape[1]), c if c is not None else cfg.c_grid[0])
+        given = c if c is not None else cfg.c_grid[0]
+        per_column = np.array(np.broadcast_to(given, (num_layers, y.shape[1])), dtype=np.float64)
     elif groups is None:
         raise ValueError("choosing C by cross-validation needs the rows' episodes (groups=)")
     else:
@@ -132,6 +137,8 @@ def fit_probes(
         max_iter=cfg.max_iter,
         history=cfg.history,
         memory_mb=cfg.memory_mb,
+        init=init,
+        penalized=penalized,
     )
     if mean is not None and std is not None:  # on the CPU, as fit_logistic returns the weights
         mean, std = mean.cpu(), std.cpu()

@@ -79,7 +79,6 @@ def _features(p: ConditionalProbe) -> JsonObject:
         "key": p.baseline,
         "value": p.features.value[0],
         "ci": [p.features.low[0], p.features.high[0]],
-        "c": p.c_features,
     }
 
 
