@@ -405,10 +405,14 @@ def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.Captu
             "--perturb needs a pick-and-place goal (one On(a, b) between objects); libero_object task 0's",
         ),
         (
-            ["run", "--suite", "libero_object", "--out", "OUT"],
-            "--suite libero_object: `vlaprobe run` runs on",
+            ["run", "--suite", "libero_90", "--out", "OUT"],
+            "--suite libero_90: `vlaprobe run` runs on",
         ),
-        (["serve", "--suite", "libero_10", "--probes", "OUT"], "--suite libero_10: `vlaprobe serve` runs on"),
+        (
+            ["run", "--suite", "libero_goal", "--out", "OUT"],
+            "--suite libero_goal: `vlaprobe run` runs on libero_spatial only so far",
+        ),
+        (["serve", "--suite", "libero_90", "--probes", "OUT"], "--suite libero_90: `vlaprobe serve` runs on"),
     ],
 )
 def test_suite_inputs_are_one_line(

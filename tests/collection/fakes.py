@@ -20,6 +20,7 @@ from vlaprobe.collection.worker import Worker
 from vlaprobe.envs.base import Observation
 from vlaprobe.rollout import DaggerDriver, PolicyDriver
 from vlaprobe.symbols import Articulation, Goal, Labeler, Scene, WorldState
+from vlaprobe.symbols.goals import Conjunct, GoalConjunction
 
 NUM_TASKS, NUM_INITS, LAYERS, HIDDEN, IMAGE = 3, 12, 4, 8, 16
 SCENE = Scene(
@@ -30,6 +31,7 @@ SCENE = Scene(
     region_parent={"cabinet_top": "cabinet"},
 )
 GOAL = Goal(pick="bowl", place="plate")
+GOAL_CONJUNCTION = GoalConjunction((Conjunct("On", ("bowl", "plate")),))
 
 
 def succeeds(task: int, init: int) -> bool:
@@ -46,7 +48,7 @@ class FakeEnv:
         self.task_index = task
         self.instruction = f"put the bowl on the plate ({task})"
         self.num_init_states = NUM_INITS
-        self.scene, self.goal = SCENE, GOAL
+        self.scene, self.goal, self.goal_conjunction = SCENE, GOAL, GOAL_CONJUNCTION
         self.labeler = Labeler(SCENE, GOAL)
         self.delay = float(os.environ.get("FAKE_STEP_SECONDS", "0"))
 

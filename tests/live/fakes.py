@@ -193,6 +193,7 @@ def random_probes(
     atoms: dict[str, list[str]],
     layer: int = 8,
     seed: int = 0,
+    suite: str = "libero_spatial",
 ) -> Path:
     """A probe folder with random weights for a model's shapes (to test plumbing, not probing); every fifth
     atom is dropped as "near-constant" so the not-probed path is exercised."""
@@ -224,6 +225,7 @@ def random_probes(
         layers=[layer],
         threshold=0.5,
         heads=heads,
+        suite=suite,
     )
     return ProbeSet(meta, tensors).save(folder)
 

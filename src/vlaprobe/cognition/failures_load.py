@@ -53,6 +53,7 @@ def load_episodes(cfg: FailuresConfig) -> tuple[list[EpisodeData], str, int, Tok
     ``--token-model``, where the token distributions came from."""
     from vlaprobe.cognition.core import Cognition
     from vlaprobe.cognition.failure_scores import cognition_columns, run_cognition
+    from vlaprobe.cognition.plan import TaskGoal, stored_task_goal
     from vlaprobe.cognition.readout import HEADS, ProbeReadout
     from vlaprobe.collection.store import ActivationStore
     from vlaprobe.collection.verify import require_intact
@@ -68,26 +69,22 @@ def load_episodes(cfg: FailuresConfig) -> tuple[list[EpisodeData], str, int, Tok
     readout = None if cfg.probes is None else ProbeReadout.load(cfg.probes, model_id=store.model_id)
     observer = None if cfg.token_model is None else token_observer(store, cfg.token_model)
     matched = total = 0
-    cogs: dict[tuple[str, str], Cognition] = {}
+    cogs: dict[TaskGoal, Cognition] = {}
     data = []
     for info in infos:
         attrs = store.episode(info.key).attributes
-        if attrs.goal is None:
-            raise VlaprobeError(
-                f"episode {info.key} of {cfg.store} records no goal; collect it with this vlaprobe"
-            )
-        names = (attrs.goal.pick, attrs.goal.place)
-        if names not in cogs:
+        goal = stored_task_goal(store.suite, info.task, attrs, f"episode {info.key} of {cfg.store}")
+        if goal not in cogs:
             probed = None if readout is None else readout.probed
-            cogs[names] = Cognition(
-                store.atom_names["object"], store.atom_names["action"], attrs.goal, probed=probed
+            cogs[goal] = Cognition(
+                store.atom_names["object"], store.atom_names["action"], goal, probed=probed
             )
         if readout is None:
             obj, act = store.labels("object", [info.key]), store.labels("action", [info.key])
         else:
             pred = readout.assign_steps({h: store.layer(readout.layers[h], [info.key]) for h in HEADS})
             obj, act = pred.values["object"], pred.values["action"]
-        steps = run_cognition(cogs[names], obj, act)
+        steps = run_cognition(cogs[goal], obj, act)
         cols, rules, subgoal = cognition_columns(steps)
         tokens = None
         if observer is not None:

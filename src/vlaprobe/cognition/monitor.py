@@ -22,6 +22,7 @@ import dacite
 import numpy as np
 
 from vlaprobe.cognition.core import Cognition, CognitionStep
+from vlaprobe.cognition.plan import TaskGoal, stored_task_goal
 from vlaprobe.cognition.readout import HEADS, ProbeReadout
 from vlaprobe.configs.env import same_suite
 from vlaprobe.configs.monitor import CognitionConfig, MonitorConfig
@@ -267,19 +268,17 @@ def _pair(
     mask: np.ndarray,
 ) -> _Pair:
     """Run one stored episode through the cognition on truth and on the probes' predictions."""
-    goal = store.episode(key).attributes.goal
-    if goal is None:
-        raise VlaprobeError(
-            f"episode {key} of store {label} records no task goal; collect it again with this vlaprobe"
-        )
-    names = (goal.pick, goal.place)
-    if names not in cogs:
+    episode = store.episode(key)
+    goal = stored_task_goal(
+        store.suite, episode.info.task, episode.attributes, f"episode {key} of store {label}"
+    )
+    if goal not in cogs:
         obj_atoms, act_atoms = store.atom_names["object"], store.atom_names["action"]
-        cogs[names] = (
+        cogs[goal] = (
             Cognition(obj_atoms, act_atoms, goal, ccfg),
             Cognition(obj_atoms, act_atoms, goal, ccfg, probed=readout.probed),
         )
-    cog_truth, cog_probes = cogs[names]
+    cog_truth, cog_probes = cogs[goal]
     truth = _run(cog_truth, store.labels("object", [key]), store.labels("action", [key]))
     pred = readout.assign_steps({h: store.layer(readout.layers[h], [key]) for h in HEADS})
     run = _run(cog_probes, pred.values["object"], pred.values["action"])
@@ -383,7 +382,7 @@ def monitor(cfg: MonitorConfig) -> MonitorResult:
         require_intact(path, read=True, keys=[e.key for e in extra.episodes()])
         sources.append((extra, [e.key for e in extra.episodes()], str(path), f"{Path(path).name}/"))
     ccfg = cfg.cognition()
-    cogs: dict[tuple[str, str], tuple[Cognition, Cognition]] = {}
+    cogs: dict[TaskGoal, tuple[Cognition, Cognition]] = {}
     mask = np.concatenate([readout.probed[h] for h in HEADS])
     pairs = []
     for st, ks, label, prefix in sources:

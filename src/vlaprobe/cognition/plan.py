@@ -16,11 +16,15 @@ nothing (``On`` onto a placement region of the table) is refused in one line.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.symbols.goals import Conjunct, GoalConjunction
 from vlaprobe.symbols.vocabulary import atom
 from vlaprobe.symbols.world import Goal, Scene
+
+if TYPE_CHECKING:
+    from vlaprobe.collection.episode import EpisodeAttrs
 
 
 @dataclass(frozen=True)
@@ -39,6 +43,15 @@ class TaskGoal:
     def of(cls, goal: Goal) -> TaskGoal:
         """A LIBERO-spatial pick-and-place goal."""
         return cls((Conjunct("On", (goal.pick, goal.place)),), (), goal)
+
+    def objects(self) -> list[str]:
+        """The objects and regions the conjuncts name, each followed by the object a region belongs to, in order
+        (the live UI pins the atoms that mention them)."""
+        parent, out = dict(self.parents), []
+        for c in self.conjuncts:
+            for a in c.args:
+                out += [a, parent[a]] if a in parent else [a]
+        return list(dict.fromkeys(out))
 
     def __str__(self) -> str:
         return " & ".join(map(str, self.conjuncts))
@@ -66,6 +79,24 @@ def task_goal(goal: GoalConjunction, scene: Scene) -> TaskGoal:
         if c.predicate == "On" and c.args[0] in scene.pickupable and c.args[1] in scene.tabletop:
             pick_place = Goal(*c.args)
     return TaskGoal(expert_order(goal, scene), tuple(sorted(scene.region_parent.items())), pick_place)
+
+
+def stored_task_goal(suite: str, task: int, attrs: EpisodeAttrs, where: str) -> TaskGoal:
+    """The goal of a stored episode (``where`` names it in errors): its recorded pick-and-place goal, as before;
+    else its task's BDDL conjunction in its stored scene."""
+    if attrs.goal is not None:
+        return TaskGoal.of(attrs.goal)
+    if attrs.scene is None:
+        raise VlaprobeError(
+            f"{where} records neither a goal nor a scene; collect it again with this vlaprobe"
+        )
+    from vlaprobe.configs.env import SUITES
+    from vlaprobe.envs.bddl_scene import task_goal as bddl_goal
+
+    known = next((s for s in SUITES if s == suite), None)
+    if known is None:
+        raise VlaprobeError(f"{where} comes from an unknown suite {suite!r}; use one of {', '.join(SUITES)}")
+    return task_goal(bddl_goal(known, task), attrs.scene)
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ from typing import Protocol
 import numpy as np
 
 from vlaprobe.symbols import Goal, Labeler, Scene, WorldState
+from vlaprobe.symbols.goals import GoalConjunction
 
 __all__ = ["Observation", "TaskEnv"]
 
@@ -39,7 +40,9 @@ class TaskEnv(Protocol):
     scene: Scene
     """The typed objects of the task."""
     goal: Goal
-    """The task's pick-and-place goal."""
+    """The task's pick-and-place goal (LIBERO-spatial; absent where the goal is not one ``On`` between objects)."""
+    goal_conjunction: GoalConjunction
+    """The task's BDDL goal, every conjunct."""
     labeler: Labeler
     """The ground-truth detectors of this scene: ``labeler(world_state) -> (object bits, action bits)``."""
 

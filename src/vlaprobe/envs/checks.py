@@ -80,12 +80,18 @@ def check_atoms(cfg: AtomsConfig) -> None:
         raise VlaprobeError(f"--init {cfg.init} does not exist; the task has init states 0-{inits - 1}")
 
 
-EPISODE_SUITES: tuple[SuiteName, ...] = ("libero_spatial",)
-"""Suites whose episodes can be probed and monitored end to end (``run``, ``serve``): the step-wise goal and the
-cognition know LIBERO-spatial's one pick-and-place so far (issue #35); ``tasks`` and ``atoms`` take every suite."""
 COLLECT_SUITES: tuple[SuiteName, ...] = ("libero_spatial", "libero_object", "libero_goal", "libero_10")
 """Suites ``collect`` takes: those whose tasks the scripted expert's skills were measured on (docs/collection.md,
 "The scripted expert"); a task whose goal no skill handles is refused by the collection's own checks."""
+EPISODE_SUITES: tuple[SuiteName, ...] = COLLECT_SUITES
+"""Suites whose episodes can be probed and monitored end to end (``run``, ``serve``): those the expert drives; the
+cognition follows each task's own goal conjunction (``cognition.plan.task_goal``). ``tasks`` and ``atoms`` take
+every suite."""
+
+
+RUN_SUITES: tuple[SuiteName, ...] = ("libero_spatial",)
+"""Suites ``vlaprobe run`` takes end to end: on the others a run's cognition stage can find no action head to
+read (their goals leave the action atoms constant on small stores); run their stages one by one."""
 
 
 def check_episode_suite(env: EnvConfig, command: str, suites: tuple[SuiteName, ...] = EPISODE_SUITES) -> None:
@@ -110,4 +116,9 @@ def precheck(cfg: object) -> None:
     elif isinstance(cfg, ServeConfig):
         check_episode_suite(cfg.env, "serve")
     elif isinstance(cfg, RunConfig):
+        if cfg.collect.env.suite not in RUN_SUITES and cfg.collect.env.suite in EPISODE_SUITES:
+            raise VlaprobeError(
+                f"--suite {cfg.collect.env.suite}: `vlaprobe run` runs on libero_spatial only so far; run the "
+                "stages one by one: `vlaprobe collect`, `train`, `hypotheses`, `cognition` (docs/probing.md)"
+            )
         check_episode_suite(cfg.collect.env, "run")

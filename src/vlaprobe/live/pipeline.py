@@ -15,10 +15,11 @@ from typing import Protocol
 import numpy as np
 
 from vlaprobe.cognition.core import CognitionStep, Violation
+from vlaprobe.cognition.plan import TaskGoal
 from vlaprobe.cognition.subgoals import Event, SubgoalState
 from vlaprobe.live import protocol as P
 from vlaprobe.rollout import StepRecord, StepTimings, SuccessTracker
-from vlaprobe.symbols import HEADS, Goal
+from vlaprobe.symbols import HEADS
 
 STORE_PREFIX = "store-"
 """Ids of a store's episodes are ``store-<key>`` (``StoreEpisodes.PREFIX``)."""
@@ -56,7 +57,7 @@ class EpisodeCognition(Protocol):
     def step(self, object_values: np.ndarray, action_values: np.ndarray) -> CognitionStep: ...
 
 
-MakeCognition = Callable[[dict[str, list[str]], Goal, dict[str, np.ndarray] | None], EpisodeCognition]
+MakeCognition = Callable[[dict[str, list[str]], TaskGoal, dict[str, np.ndarray] | None], EpisodeCognition]
 """(atoms per head, goal, probed per head or None for truth) -> a fresh cognition for one episode."""
 
 
@@ -73,8 +74,8 @@ class EpisodeSpec:
     """"live" or "store"."""
     suite: str
     """The LIBERO suite of the task."""
-    goal: Goal
-    """The task's goal."""
+    goal: TaskGoal
+    """The task's goal: its BDDL conjunction in the expert's order (``cognition.plan.task_goal``)."""
     atoms: dict[str, list[str]]
     """Atom names per head, in vocabulary order."""
     key: str = ""
@@ -156,7 +157,7 @@ class StepBuilder:
             atoms=P.HeadNames(object=list(s.atoms["object"]), action=list(s.atoms["action"])),
             probed=P.HeadFlags(**{h: [bool(x) for x in probed[h]] for h in HEADS}),
             subgoals=[P.SubgoalInfo(index=int(g.index), name=str(g.name)) for g in subgoals],
-            goal_objects=[str(o) for o in (s.goal.pick, s.goal.place) if o],
+            goal_objects=s.goal.objects(),
             store_episode=f"{STORE_PREFIX}{s.key}" if s.source == "store" and s.key else None,
         )
 

@@ -172,7 +172,8 @@ class EpisodeStart(_Model):
     probed: HeadFlags
     subgoals: list[SubgoalInfo]
     goal_objects: list[str] = Field(default_factory=list)
-    """The objects of the task's goal ``On(pick, place)``: the UI pins the atoms that mention them."""
+    """The objects and regions the task's goal conjunction names (``TaskGoal.objects``): the UI pins the atoms that
+    mention them."""
     store_episode: str | None = None
     """Source "store": the stored episode this one re-runs (every frame at /api/episodes/{it}/frames/{t})."""
 

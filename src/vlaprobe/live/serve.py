@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from vlaprobe import __version__
+from vlaprobe.cognition.plan import TaskGoal
 from vlaprobe.configs.checks import check_serve, step_limit
 from vlaprobe.configs.env import same_suite
 from vlaprobe.configs.monitor import CognitionConfig
@@ -76,7 +77,9 @@ def cognition_factory(config: CognitionConfig | None = None) -> MakeCognition:
     ``vlaprobe cognition`` builds it (predictions: with the probes' ``probed`` mask; truth: without)."""
     from vlaprobe.cognition import Cognition
 
-    def make(atoms: dict[str, list[str]], goal: Goal, probed: dict[str, np.ndarray] | None) -> DiarcCognition:
+    def make(
+        atoms: dict[str, list[str]], goal: TaskGoal, probed: dict[str, np.ndarray] | None
+    ) -> DiarcCognition:
         return DiarcCognition(Cognition(atoms["object"], atoms["action"], goal, config, probed=probed))
 
     return make

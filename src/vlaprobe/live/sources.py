@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vlaprobe.cognition.plan import stored_task_goal, task_goal
 from vlaprobe.configs.collect import DriverName
 from vlaprobe.envs.base import TaskEnv
 from vlaprobe.errors import VlaprobeError
@@ -127,7 +128,7 @@ class LiveSource:
             max_steps=max_steps,
             source="live",
             suite=sim.suite,
-            goal=env.goal,
+            goal=task_goal(env.goal_conjunction, env.scene),
             atoms={"object": list(vocab.object_atoms), "action": list(vocab.action_atoms)},
         )
 
@@ -198,8 +199,6 @@ class StoreEpisodes:
             raise VlaprobeError(f"no stored episode {episode_id!r}; GET /api/episodes lists them")
         self.verify(info.key)
         attrs = self.store.episode(info.key).attributes
-        if attrs.goal is None:
-            raise VlaprobeError(f"stored episode {info.key} records no task goal; collect it again")
         return EpisodeSpec(
             task=info.task,
             instruction=attrs.instruction,
@@ -208,7 +207,7 @@ class StoreEpisodes:
             max_steps=info.length,
             source="store",
             suite=self.store.suite,
-            goal=attrs.goal,
+            goal=stored_task_goal(self.store.suite, info.task, attrs, f"stored episode {info.key}"),
             atoms=self.atoms,
             key=info.key,
         )

@@ -1,0 +1,46 @@
+"""`vlaprobe cognition` on a real LIBERO-goal store: an episode with no pick-and-place goal is followed through its
+task's own goal conjunction (TurnOn), read from the BDDL in the stored scene (slow: libero mark). Random probes:
+the truth side is what is checked."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from tests.live.fakes import random_probes
+
+from vlaprobe.cognition.monitor import monitor
+from vlaprobe.cognition.plan import stored_task_goal
+from vlaprobe.collection.collect import collect
+from vlaprobe.collection.store import ActivationStore
+from vlaprobe.configs.collect import CollectConfig
+from vlaprobe.configs.env import EnvConfig
+from vlaprobe.configs.monitor import MonitorConfig
+from vlaprobe.configs.policy import PolicyConfig
+from vlaprobe.errors import VlaprobeError
+
+pytestmark = [pytest.mark.libero, pytest.mark.timeout(900), pytest.mark.serial]
+SUITE, TASK = "libero_goal", 7  # turn on the stove
+
+
+def test_monitor_follows_a_libero_goal_episode_to_its_goal(tmp_path: Path) -> None:
+    cfg = CollectConfig(
+        out=tmp_path / "store", tasks=(TASK,), episodes_per_task=1, progress=False,
+        policy=PolicyConfig(model="tiny", device="cpu"), env=EnvConfig(suite=SUITE, image_size=64),
+    )  # fmt: skip
+    assert collect(cfg).published
+    store = ActivationStore.open(cfg.out)
+    (info,) = store.episodes()
+    attrs = store.episode(info.key).attributes
+    assert info.success and attrs.goal is None  # no pick-and-place goal recorded: the BDDL's is used
+    goal = stored_task_goal(store.suite, info.task, attrs, "the episode")
+    assert str(goal) == "TurnOn(flat_stove_1)"
+    atoms = {h: list(store.atom_names[h]) for h in ("object", "action")}
+    probes = random_probes(tmp_path / "probes", store.model_id, store.num_hidden_states, store.hidden_size, atoms,
+                           suite=SUITE)  # fmt: skip
+    result = monitor(MonitorConfig(store=cfg.out, probes=probes, out=tmp_path / "m", all_episodes=True))
+    (figures,) = result.per_episode
+    assert figures.goal_step_truth is not None and figures.goal_step_truth <= figures.steps
+    attrs.scene = None
+    with pytest.raises(VlaprobeError, match="records neither a goal nor a scene"):
+        stored_task_goal(store.suite, info.task, attrs, "the episode")
