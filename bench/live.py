@@ -132,6 +132,8 @@ async def _client(url: str, i: int, start: str | None, pause_at: int | None, rea
                     await asyncio.sleep(PAUSE_S)  # this client reads nothing for PAUSE_S s
             elif msg["type"] == "episode_end":
                 break
+            elif msg["type"] == "error":  # the episode failed: fail the bench now, not at the 600 s timeout
+                raise RuntimeError(f"client {i}: the server reported: {msg['message']}")
     out[i] = rows
 
 
@@ -191,9 +193,9 @@ def readers_main(base: str, ids: list[str], n: int, started: Any, stop: Any, res
             status = fetch(f"{base}/api/episodes/{eid}")
             with lock:
                 counts["episodes" if status == 200 else "busy" if status == 503 else "failed"] += 1
-            if i == 0 and counts["episodes"] == 1:
-                started.set()
-            for t in (0, 5, 10, 15):
+                if counts["episodes"]:  # any reader's first episode (a check of one thread's could miss it)
+                    started.set()
+            for t in size((0, 5, 10, 15), (0, 3, 6, 9)):  # frames inside the episodes (10 steps when quick)
                 status = fetch(f"{base}/api/episodes/{eid}/frames/{t}")
                 with lock:
                     counts["frames" if status == 200 else "busy" if status == 503 else "failed"] += 1
@@ -261,7 +263,8 @@ def store_reads_case(url: str, base: str, ids: list[str], start: str, wait_idle:
         started, stop, results = ctx.Event(), ctx.Event(), ctx.Queue()
         proc = ctx.Process(target=readers_main, args=(base, ids, 8, started, stop, results))
         proc.start()
-        started.wait(300)
+        if not started.wait(120):
+            raise RuntimeError("the store readers fetched no episode in 120 s")
         loaded.append(live_rate())
         stop.set()
         reads.append(results.get(timeout=600))
@@ -291,6 +294,7 @@ def main() -> None:
     if "VLAPROBE_LIBERO_ASSETS" not in os.environ and shared.is_dir():
         os.environ["VLAPROBE_LIBERO_ASSETS"] = str(shared)
     from vlaprobe.cognition import Cognition
+    from vlaprobe.cognition.plan import task_goal
     from vlaprobe.cognition.readout import ProbeReadout
     from vlaprobe.configs.policy import PolicyConfig
     from vlaprobe.configs.serve import ServeConfig
@@ -307,12 +311,13 @@ def main() -> None:
     vocab = env.labeler.vocabulary
     atoms = {"object": list(vocab.object_atoms), "action": list(vocab.action_atoms)}
     first = env.reset(0)
+    goal = task_goal(env.goal_conjunction, env.scene)  # what the live source builds for the episode
 
     # probes and cognition alone
     big = ProbeReadout(random_probes(tmp / "big", "openvla-7b", 33, 4096, atoms))
     hidden = np.random.default_rng(0).standard_normal((33, 4096)).astype(np.float32)
     probe_ms = median_ms(lambda: big.assign(hidden), size(300, 5))
-    cog = Cognition(atoms["object"], atoms["action"], env.goal, cfg.cognition)
+    cog = Cognition(atoms["object"], atoms["action"], goal, cfg.cognition)
     obj, act = env.labeler(env.world_state())
     rng = np.random.default_rng(1)
 
@@ -343,7 +348,7 @@ def main() -> None:
     session = app.state.session
     spec = EpisodeSpec(
         task=0, instruction=env.instruction, init=0, driver="synthetic", max_steps=STEPS_FAST, source="live",
-        suite=cfg.env.suite, goal=env.goal, atoms=atoms,
+        suite=cfg.env.suite, goal=goal, atoms=atoms,
     )  # fmt: skip
 
     def synthetic(steps: int) -> Any:
