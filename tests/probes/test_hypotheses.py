@@ -20,6 +20,7 @@ from vlaprobe.probes.bootstrap import bootstrap_weights, percentile_interval
 from vlaprobe.probes.hypotheses import LayerCurves, answer_hypotheses, curves_from_counts, layer_statistics
 from vlaprobe.probes.hypotheses_run import hypotheses, run_curves
 from vlaprobe.probes.metrics import confusion_by_group
+from vlaprobe.probes.results import DECIMALS
 from vlaprobe.probes.split import make_folds
 from vlaprobe.probes.train import train_probes
 
@@ -180,13 +181,13 @@ def test_curves_and_intervals_equal_the_evaluation(trained: Path) -> None:
         layer = ev["heads"][head]["probe"]["balanced_accuracy"]["layer"]
         low, high = percentile_interval(curves.resamples[head])
         for ours, theirs in ((curves.point[head], "value"), (low, "low"), (high, "high")):
-            np.testing.assert_allclose(np.round(ours, 5), np.array(layer[theirs], float), rtol=0, atol=1e-9)
+            np.testing.assert_allclose(np.round(ours, DECIMALS), np.array(layer[theirs], float), rtol=0, atol=1e-9)
     result = hypotheses(HypothesesConfig(probes=trained))
     for head, h in result.heads.items():
         best = ev["heads"][head]["probe"]["balanced_accuracy"]["layer"]
         i = curves.layers.index(h.best)
-        assert round(h.best_value, 5) == pytest.approx(best["value"][i], abs=1e-9)
-        assert [round(x, 5) for x in h.best_value_interval] == pytest.approx(
+        assert round(h.best_value, DECIMALS) == pytest.approx(best["value"][i], abs=1e-9)
+        assert [round(x, DECIMALS) for x in h.best_value_interval] == pytest.approx(
             [best["low"][i], best["high"][i]], abs=1e-9
         )
     with pytest.raises(VlaprobeError, match="too few"):

@@ -373,12 +373,18 @@ class Evaluation:
 # -- conversions -------------------------------------------------------------------------------------------
 
 
+DECIMALS = 10
+"""Decimals kept in the file: enough that a figure quoted at 3 decimals rounds once, from the computed value
+(at 5, 0.738496 was stored as 0.7385 and quoted as 0.739 where ``vlaprobe hypotheses`` printed 0.738), and
+few enough to drop the float noise of the last bits."""
+
+
 def nested(x: object) -> Nested:
-    """A float array as nested lists, NaN -> None, rounded to 5 decimals (ints and bools as they are)."""
+    """A float array as nested lists, NaN -> None, rounded to :data:`DECIMALS` (ints and bools as they are)."""
     a = np.asarray(x)
     if a.dtype.kind in "iub":
         return a.tolist()
-    rounded = np.round(a.astype(np.float64), 5)
+    rounded = np.round(a.astype(np.float64), DECIMALS)
     return np.where(np.isnan(rounded), np.array(None), rounded).tolist()
 
 
@@ -389,9 +395,9 @@ def level(x: Mapping[str, np.ndarray]) -> Level:
 
 
 def number(x: SupportsFloat) -> float | None:
-    """One float rounded to 5 decimals, NaN -> None."""
+    """One float rounded to :data:`DECIMALS`, NaN -> None."""
     x = float(x)
-    return None if math.isnan(x) else round(x, 5)
+    return None if math.isnan(x) else round(x, DECIMALS)
 
 
 def arr(x: Nested | None) -> np.ndarray:
