@@ -116,6 +116,18 @@ def test_failing_train_keeps_the_probe_config(store: Path, capsys: pytest.Captur
     assert folder_bytes(out) == before
 
 
+def test_training_again_replaces_what_the_probes_other_commands_wrote(store: Path) -> None:
+    from vlaprobe.configs.hypotheses import HypothesesConfig
+    from vlaprobe.probes.hypotheses_run import hypotheses
+
+    out = store.parent / "probes"
+    train_module.train_probes(TrainConfig(store=store, out=out, **FAST))
+    hypotheses(HypothesesConfig(probes=out))
+    assert (out / "hypotheses.json").is_file()
+    train_module.train_probes(TrainConfig(store=store, out=out, **FAST))  # the folder is still train's
+    assert not (out / "hypotheses.json").exists()  # it described the replaced probes
+
+
 # ----- a folder holding something else is not written into --------------------------------------------------
 def test_outputs_refuse_folders_holding_something_else(
     store: Path, capsys: pytest.CaptureFixture[str]

@@ -25,9 +25,10 @@ if TYPE_CHECKING:
     from vlaprobe.probes.data import ProbeData
 
 PROBE_FILES = frozenset(
-    {"probes.json", "probes.safetensors", "evaluation.json", "config.json", "monitor.json"}
+    {"probes.json", "probes.safetensors", "evaluation.json", "config.json", "monitor.json", "hypotheses.json"}
 )
-"""What a probe folder holds (``monitor.json`` is written there by ``vlaprobe cognition``)."""
+"""What a probe folder holds (``monitor.json`` is written there by ``vlaprobe cognition``, ``hypotheses.json``
+by ``vlaprobe hypotheses``; a new training replaces the folder whole, so neither outlives the probes it read)."""
 
 
 PROBES_FOLDER = FolderKind(
