@@ -181,7 +181,9 @@ def test_curves_and_intervals_equal_the_evaluation(trained: Path) -> None:
         layer = ev["heads"][head]["probe"]["balanced_accuracy"]["layer"]
         low, high = percentile_interval(curves.resamples[head])
         for ours, theirs in ((curves.point[head], "value"), (low, "low"), (high, "high")):
-            np.testing.assert_allclose(np.round(ours, DECIMALS), np.array(layer[theirs], float), rtol=0, atol=1e-9)
+            np.testing.assert_allclose(
+                np.round(ours, DECIMALS), np.array(layer[theirs], float), rtol=0, atol=1e-9
+            )
     result = hypotheses(HypothesesConfig(probes=trained))
     for head, h in result.heads.items():
         best = ev["heads"][head]["probe"]["balanced_accuracy"]["layer"]
