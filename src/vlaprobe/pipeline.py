@@ -111,6 +111,8 @@ def _run(cfg: RunConfig) -> Path:
     print(f"[3/4] cognition → {cfg.train.out}/monitor.json", flush=True)
     # The cognition over the held-out episodes, on the truth and on the probes; the report adds its section.
     cognition = monitor(cfg.monitor)
+    for line in cognition.gaps():
+        print(f"      {line}", flush=True)
     t2 = time.perf_counter()
     print(f"[4/4] report → {cfg.report.out}", flush=True)
     page = report(cfg.report)

@@ -11,7 +11,7 @@ and subgoals (:class:`SubgoalTracker`). Atoms marked not probed keep their step-
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -71,7 +71,11 @@ class Cognition:
         goal: Goal | TaskGoal,
         config: CognitionConfig | None = None,
         probed: Mapping[str, np.ndarray] | None = None,
+        unknown: Collection[str] = (),
     ) -> None:
+        """``probed``: per head, which atoms a probe predicts (the others keep their step-0 value); ``unknown``:
+        atoms whose values carry no information at all (a head without probes), which the subgoals do not wait
+        for (:class:`SubgoalTracker`)."""
         self.config = config or CognitionConfig()
         self.object_atoms = tuple(object_atoms)
         self.action_atoms = tuple(action_atoms)
@@ -98,7 +102,7 @@ class Cognition:
             self.config.budget,
         )
         self.subgoals = SubgoalTracker(
-            self.beliefs.index, goal, self.config.stall_steps, self.config.regression_steps
+            self.beliefs.index, goal, self.config.stall_steps, self.config.regression_steps, unknown
         )
         self.reset()
 

@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from collections import Counter
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -22,16 +23,23 @@ import dacite
 import numpy as np
 
 from vlaprobe.cognition.core import Cognition, CognitionStep
-from vlaprobe.cognition.plan import TaskGoal, stored_task_goal
+from vlaprobe.cognition.monitor_inputs import (
+    SkippedEpisode,
+    check_new_episodes,
+    check_store,
+    episode_goal,
+    identity,
+    load_readout,
+)
+from vlaprobe.cognition.plan import TaskGoal
 from vlaprobe.cognition.readout import HEADS, ProbeReadout
-from vlaprobe.configs.env import same_suite
 from vlaprobe.configs.monitor import CognitionConfig, MonitorConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject, from_json, read_versioned, write_atomic
 from vlaprobe.probes.bootstrap import bootstrap_weights, interval, resample_sums
 
 if TYPE_CHECKING:
-    from vlaprobe.collection.store import ActivationStore, EpisodeInfo
+    from vlaprobe.collection.store import ActivationStore
     from vlaprobe.probes.probeset import ProbeSet
     from vlaprobe.reports.sections import Section
 
@@ -114,6 +122,23 @@ class MonitorResult:
     debounce: int
     rules: list[str]
     per_episode: list[EpisodeFigures]
+    skipped: list[SkippedEpisode] = field(default_factory=list)
+    """Episodes left out: their goal names an atom the vocabulary lacks (e.g. a push onto a table region)."""
+    unknown_heads: list[str] = field(default_factory=list)
+    """Heads the probes lack (``train`` skipped them): their atoms were read as unknown (not probed, false)."""
+
+    def gaps(self) -> list[str]:
+        """One line per thing the cognition could not do (episodes left out, a head read as unknown)."""
+        lines = []
+        if self.skipped:
+            shown = "; ".join(f"{s.key} (task {s.task}): {s.reason}" for s in self.skipped[:3])
+            more = f"; and {len(self.skipped) - 3} more" if len(self.skipped) > 3 else ""
+            lines.append(f"{len(self.skipped)} episode(s) left out, goal not followable: {shown}{more}")
+        for head in self.unknown_heads:
+            lines.append(
+                f"the probes have no {head} head: the cognition ran on the other head alone, {head} beliefs unknown"
+            )
+        return lines
 
     def summary(self) -> JsonObject:
         """The figures of the issue's JSON: episodes, steps, truth, probes."""
@@ -130,9 +155,11 @@ class MonitorResult:
 
 
 MONITOR_FORMAT = "vlaprobe-monitor"
-MONITOR_FORMAT_VERSION = 2
+MONITOR_FORMAT_VERSION = 3
 """Version 2 added goal detection's false alarms and episode counts (and each episode's ``false_alarms``); a
-version-1 file is read with those at their defaults (an episode's false alarms as 0: not counted then)."""
+version-1 file is read with those at their defaults (an episode's false alarms as 0: not counted then). Version 3
+added the episodes left out (``skipped``) and the heads read as unknown (``unknown_heads``); older files read
+with none."""
 
 
 def write_monitor(folder: str | Path, result: MonitorResult) -> Path:
@@ -149,7 +176,7 @@ def read_monitor(folder: str | Path) -> MonitorResult:
     hint = "run vlaprobe cognition again"
     data, version = read_versioned(
         path, MONITOR_FORMAT, "monitor file", (1, MONITOR_FORMAT_VERSION), hint, unversioned=1
-    )
+    )  # versions 1 and 2 have no skipped episodes nor unknown heads: read as none
     data = {k: v for k, v in data.items() if k not in ("format", "format_version")}
     if version == 1:
         for episode in data.get("per_episode") or []:
@@ -218,69 +245,26 @@ class _Pair:
     raw: np.ndarray  # (T, probed atoms) bool
 
 
-def _check_store(store: ActivationStore, readout: ProbeReadout, path: Path) -> None:
-    same_suite(f"store {path}", store.suite, f"the probes in {readout.probes.where}", readout.probes.suite)
-    if store.model_id != readout.model_id:
-        raise VlaprobeError(
-            f"store {path} was observed by {store.model_id!r}, not the probes' model; pass its store"
-        )
-    for h in HEADS:
-        if list(readout.atoms[h]) != list(store.atom_names.get(h, [])):
-            raise VlaprobeError(
-                f"the probes' {h} atoms differ from store {path}'s; pass the store the probes were trained on"
-            )
-
-
-def _identity(info: EpisodeInfo) -> tuple[str, int, int, int, int, int]:
-    """What tells one recorded episode from another: a copy of a store repeats it under any path."""
-    return (info.key, info.task, info.init, info.attempt, info.seed, info.length)
-
-
-def _check_new_episodes(extra: ActivationStore, path: Path, seen: dict[tuple, str], store: Path) -> None:
-    """Refuse an extra store that repeats episodes of --store (the probes' own, some trained on) or of another
-    extra store: counted twice, or trained-on episodes counted as held out."""
-    repeated: dict[str, list[str]] = {}
-    for info in extra.episodes():
-        where = seen.get(_identity(info))
-        if where is not None:
-            repeated.setdefault(where, []).append(info.key)
-        seen[_identity(info)] = str(path)
-    for where, keys in repeated.items():
-        shown = ", ".join(keys[:3]) + (", ..." if len(keys) > 3 else "")
-        raise VlaprobeError(
-            f"--extra-stores {path} repeats {len(keys)} episode(s) of {where} ({shown}): "
-            + (
-                "the probes were trained on its episodes, so they would count as held out"
-                if where == str(store)
-                else "they would be counted twice"
-            )
-            + "; pass only stores of other episodes (e.g. policy-driven ones)"
-        )
-
-
 def _pair(
     store: ActivationStore,
     key: str,
-    label: str,
+    goal: TaskGoal,
     readout: ProbeReadout,
     ccfg: CognitionConfig,
     cogs: dict,
     mask: np.ndarray,
 ) -> _Pair:
     """Run one stored episode through the cognition on truth and on the probes' predictions."""
-    episode = store.episode(key)
-    goal = stored_task_goal(
-        store.suite, episode.info.task, episode.attributes, f"episode {key} of store {label}"
-    )
     if goal not in cogs:
         obj_atoms, act_atoms = store.atom_names["object"], store.atom_names["action"]
+        unknown = [a for h in readout.unknown for a in readout.atoms[h]]
         cogs[goal] = (
             Cognition(obj_atoms, act_atoms, goal, ccfg),
-            Cognition(obj_atoms, act_atoms, goal, ccfg, probed=readout.probed),
+            Cognition(obj_atoms, act_atoms, goal, ccfg, probed=readout.probed, unknown=unknown),
         )
     cog_truth, cog_probes = cogs[goal]
     truth = _run(cog_truth, store.labels("object", [key]), store.labels("action", [key]))
-    pred = readout.assign_steps({h: store.layer(readout.layers[h], [key]) for h in HEADS})
+    pred = readout.assign_steps({h: store.layer(layer, [key]) for h, layer in readout.layers.items()})
     run = _run(cog_probes, pred.values["object"], pred.values["action"])
     raw = np.concatenate([pred.values["object"], pred.values["action"]], axis=1)[:, mask]
     return _Pair(key, truth, run, raw)
@@ -369,27 +353,36 @@ def monitor(cfg: MonitorConfig) -> MonitorResult:
     if cfg.out is not None:
         check_output_folder(cfg.out)  # before the episodes are run, not after
     store = ActivationStore.open(cfg.store)
-    readout = ProbeReadout.load(cfg.probes)
-    _check_store(store, readout, cfg.store)  # the suite, then the model, then the atoms
+    readout = load_readout(Path(cfg.probes), store)
+    check_store(store, readout, cfg.store)  # the suite, then the model, then the atoms
     keys, held_out = _episodes(cfg, store, readout.probes)
     require_intact(cfg.store, read=True, keys=keys)  # a missing chunk would read as fill values
     sources = [(store, keys, str(cfg.store), "")]
-    seen = {_identity(e): str(cfg.store) for e in store.episodes()}
+    seen = {identity(e): str(cfg.store) for e in store.episodes()}
     for path in cfg.extra_stores:
         extra = ActivationStore.open(path)
-        _check_store(extra, readout, path)
-        _check_new_episodes(extra, path, seen, cfg.store)
+        check_store(extra, readout, path)
+        check_new_episodes(extra, path, seen, cfg.store)
         require_intact(path, read=True, keys=[e.key for e in extra.episodes()])
         sources.append((extra, [e.key for e in extra.episodes()], str(path), f"{Path(path).name}/"))
     ccfg = cfg.cognition()
     cogs: dict[TaskGoal, tuple[Cognition, Cognition]] = {}
     mask = np.concatenate([readout.probed[h] for h in HEADS])
-    pairs = []
+    pairs, skipped = [], []
     for st, ks, label, prefix in sources:
         for key in ks:
-            pair = _pair(st, key, label, readout, ccfg, cogs, mask)
+            goal = episode_goal(st, key, label)
+            if isinstance(goal, SkippedEpisode):
+                skipped.append(replace(goal, key=prefix + key))
+                continue
+            pair = _pair(st, key, goal, readout, ccfg, cogs, mask)
             pair.key = prefix + key
             pairs.append(pair)
+    if not pairs and skipped:
+        raise VlaprobeError(
+            f"the cognition can follow none of the {len(skipped)} episodes' goals ({skipped[0].reason}); "
+            "collect tasks whose goals it follows (--tasks)"
+        )
     engine = next(iter(cogs.values()))[0].rules if cogs else None
     rules = sorted(engine.messages) if engine is not None else []
     truth, probes = _figures(pairs, mask, rules)
@@ -403,6 +396,8 @@ def monitor(cfg: MonitorConfig) -> MonitorResult:
         debounce=ccfg.debounce,
         rules=[str(p) for p in engine.files] if engine is not None else [],
         per_episode=[_episode_figures(p) for p in pairs],
+        skipped=skipped,
+        unknown_heads=list(readout.unknown),
     )
     out = Path(cfg.out) if cfg.out is not None else Path(cfg.probes)
     write_monitor(out, result)
@@ -434,6 +429,8 @@ def report_section(probes: Path) -> Section | None:
 def main(cfg: MonitorConfig) -> int:
     """CLI entry: run :func:`monitor`, print the summary (JSON with --json), return the exit status."""
     result = monitor(cfg)
+    for line in result.gaps():
+        print(line, file=sys.stderr if cfg.json else sys.stdout)
     if cfg.json:
         print(json.dumps(result.summary()))
         return 0

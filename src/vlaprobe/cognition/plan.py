@@ -10,7 +10,8 @@ expert does them, each with its subgoals (nothing written per task).
 
 The order of the conjuncts is that of the expert's plan (:func:`vlaprobe.experts.planner.plan_steps`: opening,
 switching, placing, closing); a goal no skill handles keeps the BDDL's order. A conjunct over which our atoms say
-nothing (``On`` onto a placement region of the table) is refused in one line.
+nothing (``On`` onto a placement region of the table) is refused in one line (:func:`check_readable`); the
+offline cognition leaves such episodes out, named (:func:`unreadable`).
 """
 
 from __future__ import annotations
@@ -131,13 +132,22 @@ def conjunct_subgoals(c: Conjunct, goal: TaskGoal) -> ConjunctSubgoals:
     )
 
 
-def check_readable(parts: tuple[ConjunctSubgoals, ...], atoms: set[str] | dict[str, int]) -> None:
-    """Every subgoal's atom is among the cognition's atoms; else one line naming the conjunct."""
-    for part in parts:
+def unreadable(goal: TaskGoal, atoms: set[str] | dict[str, int] | tuple[str, ...]) -> str | None:
+    """Why the cognition cannot follow ``goal`` over ``atoms`` (a subgoal's atom is missing), or None."""
+    for part in (conjunct_subgoals(c, goal) for c in goal.conjuncts):
         missing = [a for a in part.atoms if a not in atoms]
         if missing:
-            raise VlaprobeError(
+            return (
                 f"the goal {part.conjunct} needs the atom {missing[0]!r}, which is not among the atoms given "
-                "(a goal onto a placement region of the table has none); pass the task's full object and action "
-                "atoms, or leave the task out (--tasks)"
+                "(a goal onto a placement region of the table has none)"
             )
+    return None
+
+
+def check_readable(goal: TaskGoal, atoms: set[str] | dict[str, int]) -> None:
+    """Every subgoal's atom is among the cognition's atoms; else one line naming the conjunct."""
+    problem = unreadable(goal, atoms)
+    if problem is not None:
+        raise VlaprobeError(
+            f"{problem}; pass the task's full object and action atoms, or leave the task out (--tasks)"
+        )

@@ -16,7 +16,7 @@ monitor`` and the probe set give identical predictions, bit for bit.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -54,12 +54,25 @@ class _Head:
     probed: np.ndarray  # (atoms,) bool
 
 
+def _blank(name: str, atoms: Sequence[str]) -> _Head:
+    """A head without probes: every atom unknown (not probed, false)."""
+    n = len(atoms)
+    return _Head(name, tuple(atoms), -1, np.zeros(0, np.int64), np.zeros(n, bool), np.zeros(n, bool))
+
+
 class ProbeReadout:
     """The probes of each head at one layer, as numpy arrays, turning hidden states into an Assignment."""
 
-    def __init__(self, probes: ProbeSet, layers: Mapping[str, int] | None = None) -> None:
-        layers = dict(layers or {})
-        missing = [h for h in HEADS if h not in probes.heads]
+    def __init__(
+        self,
+        probes: ProbeSet,
+        layers: Mapping[str, int] | None = None,
+        unknown: Mapping[str, Sequence[str]] | None = None,
+    ) -> None:
+        """``unknown``: heads the probes may lack, with their atoms: read as unknown (not probed, false), and
+        listed in :attr:`unknown` when the probes lack them (``vlaprobe cognition`` on an object-only folder)."""
+        layers, unknown = dict(layers or {}), dict(unknown or {})
+        missing = [h for h in HEADS if h not in probes.heads and h not in unknown]
         if missing:
             raise VlaprobeError(
                 f"the probes in {probes.where} have no {missing[0]!r} head; the cognition "
@@ -72,9 +85,14 @@ class ProbeReadout:
         self.model_id = probes.model_id
         self.num_hidden_states = probes.num_hidden_states
         self.hidden_size = probes.hidden_size
-        self._heads = {h: self._pull(probes, h, layers.get(h)) for h in HEADS}
-        self.layers: dict[str, int] = {h: self._heads[h].layer for h in HEADS}
-        """Hidden-state index each head reads."""
+        self.unknown: tuple[str, ...] = tuple(h for h in HEADS if h not in probes.heads)
+        """Heads without probes, whose atoms are all unknown (not probed, false)."""
+        self._heads = {
+            h: _blank(h, unknown[h]) if h in self.unknown else self._pull(probes, h, layers.get(h))
+            for h in HEADS
+        }
+        self.layers: dict[str, int] = {h: self._heads[h].layer for h in HEADS if h not in self.unknown}
+        """Hidden-state index each probed head reads."""
         self.atoms: dict[str, tuple[str, ...]] = {h: self._heads[h].atoms for h in HEADS}
         self.probed: dict[str, np.ndarray] = {h: self._heads[h].probed for h in HEADS}
 
@@ -110,6 +128,8 @@ class ProbeReadout:
     def _probs(self, head: _Head, x: np.ndarray) -> np.ndarray:
         """Probabilities of the kept atoms from one hidden state (hidden,) or (7, hidden) at the head's layer:
         ``ProbeSet.probabilities``' operations exactly."""
+        if head.name in self.unknown:
+            return np.zeros(0, dtype=np.float32)
         import torch  # here, not at the top: the cognition imports without torch (the probe set needs it)
 
         row = torch.from_numpy(np.array(x, dtype=np.float32))  # a copy: stored rows may be read-only
@@ -139,10 +159,12 @@ class ProbeReadout:
 
     def assign_steps(self, rows: Mapping[str, np.ndarray]) -> Assignment:
         """T steps at once from each head's layer, ``rows[head]`` (T, hidden) (as ``ActivationStore.layer``
-        reads them); arrays of the result get a leading T axis. Row for row the same operations as :meth:`assign`."""
+        reads them; none for a head in :attr:`unknown`); arrays of the result get a leading T axis. Row for row
+        the same operations as :meth:`assign`."""
         values, probs = {}, {}
+        steps = len(next(iter(rows.values())))
         for name, head in self._heads.items():
-            x = np.asarray(rows[name])
+            x = np.asarray(rows[name]) if name not in self.unknown else np.zeros((steps, self.hidden_size))
             if x.shape[-1] != self.hidden_size:
                 raise VlaprobeError(
                     f"rows of {name} have hidden size {x.shape[-1]}, the probes {self.hidden_size}"

@@ -20,12 +20,14 @@ and is now neither grasped nor on Y. The wait is needed because a placing hand l
 scripted expert opens the gripper 2-3 steps before X rests on Y. With no new subgoal done for ``stall_steps``
 steps before the goal, one ``stalled`` event (again after progress). For goals other than one pick-and-place
 the labeler leaves ``should-move-towards`` undefined (all false): a towards subgoal is then done with the subgoal
-after it, and the relation counts once X has been grasped at any time of the episode.
+after it, and the relation counts once X has been grasped at any time of the episode. When ``grasped(X)`` is
+*unknown* (probes without an action head: no belief about it carries information), the relation alone marks the
+four subgoals done.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from typing import Literal
 
@@ -65,8 +67,8 @@ class Event:
 class _Place:
     """Support of a place conjunct's four subgoals (module doc)."""
 
-    def __init__(self, part: ConjunctSubgoals, index: Mapping[str, int], directed: bool) -> None:
-        self.part, self.n, self.directed = part, 4, directed
+    def __init__(self, part: ConjunctSubgoals, index: Mapping[str, int], directed: bool, blind: bool) -> None:
+        self.part, self.n, self.directed, self.blind = part, 4, directed, blind
         self._i = tuple(index[a] for a in part.atoms)
         self.reset()
 
@@ -77,6 +79,8 @@ class _Place:
     def support(self, b: np.ndarray, level: int) -> int:
         """Highest level the current beliefs (and the directives seen) support; ``level``: the one reached."""
         towards_x, grasped, towards_y, on = (bool(b[i]) for i in self._i)
+        if self.blind:  # grasped(X) unknown: the relation is all there is to see
+            return 4 if on else 0
         if grasped:
             self._seen_grasp = True
         elif on and self._seen_grasp:
@@ -102,7 +106,7 @@ class _Place:
 class _Switch:
     """Support of a switch conjunct's two subgoals (module doc)."""
 
-    def __init__(self, part: ConjunctSubgoals, index: Mapping[str, int], directed: bool) -> None:
+    def __init__(self, part: ConjunctSubgoals, index: Mapping[str, int], directed: bool, blind: bool) -> None:
         self.part, self.n = part, 2
         self._i = tuple(index[a] for a in part.atoms)
         self.reset()
@@ -131,16 +135,22 @@ class SubgoalTracker:
         goal: Goal | TaskGoal,
         stall_steps: int = 150,
         regression_steps: int = 8,
+        unknown: Collection[str] = (),
     ) -> None:
+        """``unknown``: atoms whose beliefs carry no information (a head without probes)."""
         self.goal = goal if isinstance(goal, TaskGoal) else TaskGoal.of(goal)
+        check_readable(self.goal, dict(index))
         parts = tuple(conjunct_subgoals(c, self.goal) for c in self.goal.conjuncts)
-        check_readable(parts, dict(index))
         if stall_steps < 1 or regression_steps < 1:
             raise VlaprobeError(
                 f"stall_steps and regression_steps must be at least 1, got {stall_steps} and {regression_steps}"
             )
         directed = self.goal.pick_place is not None  # the labeler defines should-move-towards for this goal
-        self._parts = [(_Place if p.kind == "place" else _Switch)(p, index, directed) for p in parts]
+        unknown = set(unknown)
+        self._parts = [
+            (_Place if p.kind == "place" else _Switch)(p, index, directed, p.atoms[1] in unknown)
+            for p in parts
+        ]
         self.names = tuple(n for p in parts for n in p.names)
         self._offsets = np.cumsum([0] + [p.n for p in self._parts]).tolist()
         self.total = len(self.names)
