@@ -41,14 +41,21 @@ FLICKER = f"left-of({BOWL2},{COOKIES})"
 ATOMS = {"object": list(VOCAB.object_atoms), "action": list(VOCAB.action_atoms)}
 SIZE = len(VOCAB.object_atoms) + len(VOCAB.action_atoms)
 KEYS = ["t00_i00_a00", "t00_i01_a00", "t00_i02_a00"]
+REGION = "main_table_stove_front_region"
 
 
 def labels() -> np.ndarray:
     return np.array([np.concatenate(arrays(s)) for s in STEPS])
 
 
-def write_run(root: Path, first_seed: int = 0) -> tuple[Path, Path]:
-    """Three episodes; the hidden state spells the labels (+-1), except where the probes should err."""
+def write_run(
+    root: Path,
+    first_seed: int = 0,
+    region_goals: tuple[int, ...] = (),
+    heads: tuple[str, ...] = ("object", "action"),
+) -> tuple[Path, Path]:
+    """Three episodes; the hidden state spells the labels (+-1), except where the probes should err. The episodes
+    of ``region_goals`` record a goal onto a table region (no atom follows it); probes of ``heads`` only."""
     meta = {
         "atom_names": ATOMS, "model_id": "fake", "model": {"model_id": "fake"}, "num_hidden_states": 2,
         "hidden_size": SIZE, "pooling": "last_prompt", "driver": "expert", "suite": "libero_spatial",
@@ -75,12 +82,15 @@ def write_run(root: Path, first_seed: int = 0) -> tuple[Path, Path]:
                 driver="expert",
             )
             arrays_ = {"hidden": hidden, "object_atoms": y[:, :n_obj], "action_atoms": y[:, n_obj:]}
-            writer.write_episode(info, arrays_, {"goal": {"pick": "akita_black_bowl_1", "place": PLATE}})
+            place = REGION if e in region_goals else PLATE
+            writer.write_episode(info, arrays_, {"goal": {"pick": "akita_black_bowl_1", "place": place}})
     # probes: every atom that varies, the flicker atom, and one constant-true atom dropped at its majority
     y = labels()
     varying = set(np.flatnonzero(y.any(0) & ~y.all(0)).tolist()) | {VOCAB.object_atoms.index(FLICKER)}
-    heads, tensors = {}, {}
+    metas, tensors = {}, {}
     for h, offset in (("object", 0), ("action", n_obj)):
+        if h not in heads:
+            continue
         names = ATOMS[h]
         kept = [j for j in range(len(names)) if j + offset in varying]
         dropped = [
@@ -92,10 +102,10 @@ def write_run(root: Path, first_seed: int = 0) -> tuple[Path, Path]:
         for c, j in enumerate(kept):
             w[:, j + offset, c] = 10.0
         tensors[f"{h}.weight"], tensors[f"{h}.bias"] = w, torch.zeros(2, len(kept))
-        heads[h] = HeadMeta(atom_names=names, kept=[names[j] for j in kept], dropped=dropped, best_layer=1)
+        metas[h] = HeadMeta(atom_names=names, kept=[names[j] for j in kept], dropped=dropped, best_layer=1)
     pmeta = ProbesMeta(
         model_id="fake", pooling="last_prompt", hidden_size=SIZE, num_hidden_states=2, layers=[0, 1],
-        threshold=0.5, heads=heads,
+        threshold=0.5, heads=metas,
     )  # fmt: skip
     probes = ProbeSet(pmeta, tensors).save(root / "probes")
     write_evaluation(probes, evaluation_with_split(KEYS, model_id="fake", layers=[0, 1], hidden_size=SIZE))

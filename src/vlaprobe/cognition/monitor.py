@@ -175,7 +175,7 @@ def read_monitor(folder: str | Path) -> MonitorResult:
     path = Path(folder) / MONITOR_FILE
     hint = "run vlaprobe cognition again"
     data, version = read_versioned(
-        path, MONITOR_FORMAT, "monitor file", (1, MONITOR_FORMAT_VERSION), hint, unversioned=1
+        path, MONITOR_FORMAT, "monitor file", (1, 2, MONITOR_FORMAT_VERSION), hint, unversioned=1
     )  # versions 1 and 2 have no skipped episodes nor unknown heads: read as none
     data = {k: v for k, v in data.items() if k not in ("format", "format_version")}
     if version == 1:

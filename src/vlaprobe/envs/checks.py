@@ -85,13 +85,9 @@ COLLECT_SUITES: tuple[SuiteName, ...] = ("libero_spatial", "libero_object", "lib
 "The scripted expert"); a task whose goal no skill handles is refused by the collection's own checks."""
 EPISODE_SUITES: tuple[SuiteName, ...] = COLLECT_SUITES
 """Suites whose episodes can be probed and monitored end to end (``run``, ``serve``): those the expert drives; the
-cognition follows each task's own goal conjunction (``cognition.plan.task_goal``). ``tasks`` and ``atoms`` take
-every suite."""
-
-
-RUN_SUITES: tuple[SuiteName, ...] = ("libero_spatial",)
-"""Suites ``vlaprobe run`` takes end to end: on the others a run's cognition stage can find no action head to
-read (their goals leave the action atoms constant on small stores); run their stages one by one."""
+cognition follows each task's own goal conjunction (``cognition.plan.task_goal``), leaves out (named) the episodes
+whose goal no atom can follow (a push onto a table region), and runs on the object head alone when ``train``
+skipped the action head (its atoms constant on a small store). ``tasks`` and ``atoms`` take every suite."""
 
 
 def check_episode_suite(env: EnvConfig, command: str, suites: tuple[SuiteName, ...] = EPISODE_SUITES) -> None:
@@ -116,9 +112,4 @@ def precheck(cfg: object) -> None:
     elif isinstance(cfg, ServeConfig):
         check_episode_suite(cfg.env, "serve")
     elif isinstance(cfg, RunConfig):
-        if cfg.collect.env.suite not in RUN_SUITES and cfg.collect.env.suite in EPISODE_SUITES:
-            raise VlaprobeError(
-                f"--suite {cfg.collect.env.suite}: `vlaprobe run` runs on libero_spatial only so far; run the "
-                "stages one by one: `vlaprobe collect`, `train`, `hypotheses`, `cognition` (docs/probing.md)"
-            )
         check_episode_suite(cfg.collect.env, "run")
