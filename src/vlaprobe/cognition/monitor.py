@@ -5,6 +5,9 @@ the stored ground-truth atoms and on the probes' predictions (each head at its d
 their training majority). The figures compare the two runs step by step; ``monitor.json`` holds them with the
 per-rule and per-episode details.
 
+Episodes whose goal no atom can follow are left out, and probes without an action head read its atoms as unknown;
+both are listed in ``monitor.json`` and printed (:meth:`MonitorResult.gaps`), never dropped in silence.
+
 Counting: a violation is counted once when it appears (not once per step it lasts); flips are changes of a
 probed atom between consecutive steps, before (raw predictions) and after debouncing (beliefs).
 """

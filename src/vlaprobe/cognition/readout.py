@@ -76,7 +76,7 @@ class ProbeReadout:
         if missing:
             raise VlaprobeError(
                 f"the probes in {probes.where} have no {missing[0]!r} head; the cognition "
-                "needs both heads: train with --heads object action"
+                "needs it: train with --heads object action"
             )
         self.probes = probes
         """The probe set read."""
