@@ -20,10 +20,12 @@ KEPT = {"object": [0, 2, 3, 5], "action": [1]}
 FREQ = {"object": {1: 0.9, 4: 0.01}, "action": {0: 0.002, 2: 0.7}}
 
 
-def probe_set(pooling: str = "last_prompt", standardized: bool = True) -> ProbeSet:
+def probe_set(pooling: str = "last_prompt", standardized: bool = True, without: str = "") -> ProbeSet:
     rng = np.random.default_rng(0)
     heads, tensors = {}, {}
     for h, names in NAMES.items():
+        if h == without:
+            continue
         kept = KEPT[h]
         heads[h] = HeadMeta(
             atom_names=names,
@@ -97,3 +99,21 @@ def test_bad_hidden_states_and_layers_are_one_line_errors(tmp_path: Path) -> Non
         ProbeReadout(probe_set(), layers={"object": 7})
     with pytest.raises(VlaprobeError, match="not a probe folder"):
         ProbeReadout.load(tmp_path)
+
+
+def test_a_head_without_probes_reads_as_unknown_only_when_allowed() -> None:
+    """`vlaprobe cognition` on an object-only folder: the action atoms are all unknown (not probed, false); the
+    readout of the live server (no ``unknown``) still refuses the folder."""
+    probes = probe_set(without="action")
+    with pytest.raises(VlaprobeError, match="have no 'action' head; the cognition needs it"):
+        ProbeReadout(probes)
+    readout = ProbeReadout(probes, unknown={"action": NAMES["action"]})
+    assert readout.unknown == ("action",) and readout.layers == {"object": 1}
+    hidden = np.random.default_rng(4).standard_normal((LAYERS, 5, HIDDEN)).astype(np.float32)
+    batch = readout.assign_steps({"object": hidden[1]})
+    assert batch.values["action"].shape == (5, 3) and not batch.values["action"].any()
+    assert np.isnan(batch.probs["action"]).all() and not batch.probed["action"].any()
+    one = readout.assign(hidden[:, 0])
+    assert np.array_equal(one.values["object"], batch.values["object"][0]) and not one.values["action"].any()
+    expected = probes.probabilities(hidden[1, 0], head="object", layer=1)
+    assert one.probs["object"][0] == pytest.approx(expected[NAMES["object"][0]], abs=1e-5)
