@@ -38,6 +38,10 @@ class Alarm:
     atoms: tuple[str, ...] = ()
     """The beliefs involved (the violation's atoms, or the stalled subgoal)."""
 
+    def text(self) -> str:
+        """The takeover's recorded reason, e.g. ``"stall: no subgoal done for 40 steps (next: ...)"``."""
+        return f"{self.kind}: {self.reason}"
+
 
 class AlarmRule:
     """Fires on stalls, regressions, drops and held violations; at most ``most`` times per episode."""
@@ -103,7 +107,7 @@ class CognitionSupervisor:
             a = self.readout.assign(record.hidden)
             obj, act = a.values["object"], a.values["action"]
         alarm = self.rule.check(self.cognition.step(obj, act), record.takeover is not None)
-        return None if alarm is None else f"{alarm.kind}: {alarm.reason}"
+        return None if alarm is None else alarm.text()
 
 
 def collect(cfg: CollectConfig) -> object:
