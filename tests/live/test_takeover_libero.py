@@ -10,28 +10,20 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tests.live.fakes import LiveServer, random_probes
+from tests.live import test_live_libero
+from tests.live.fakes import LiveServer
 from tests.live.test_takeover import check_schema, takeovers_of
 from websockets.sync.client import connect
 
-from vlaprobe.configs.env import EnvConfig
 from vlaprobe.configs.serve import ServeConfig
 from vlaprobe.configs.takeover import TakeoverConfig
-from vlaprobe.envs.libero import LiberoTaskEnv
 from vlaprobe.live.app import create_app
 from vlaprobe.live.serve import build_engine, limits_of, load_probes
 
 pytestmark = [pytest.mark.libero, pytest.mark.timeout(600), pytest.mark.serial]
 STEPS, TAKEOVER_STEPS = 16, 4
-
-
-@pytest.fixture(scope="module")
-def probes(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    env = LiberoTaskEnv(0, EnvConfig())
-    vocab = env.labeler.vocabulary
-    env.close()
-    atoms = {"object": list(vocab.object_atoms), "action": list(vocab.action_atoms)}
-    return random_probes(tmp_path_factory.mktemp("run") / "probes", "tiny-openvla-seed0", 33, 64, atoms)
+probes = test_live_libero.probes
+"""The fixture: random probes over task 0's atoms."""
 
 
 def test_the_alarm_hands_a_live_libero_episode_to_the_expert(probes: Path, tmp_path: Path) -> None:
