@@ -72,7 +72,7 @@ class AlarmRule:
     def _why(self, step: CognitionStep, t: int) -> Alarm | None:
         for e in step.events:
             if e.kind in REACTIVE:
-                return Alarm(e.kind, e.message)
+                return Alarm(e.kind, e.message.removeprefix(f"{e.kind}: "))  # text() prefixes the kind
         held = [v for v in step.violations if t - v.since + 1 >= self.hold]
         if held:
             rules = tuple(sorted({v.rule for v in held}))
