@@ -47,6 +47,7 @@ def compare(rounds: list[Path]) -> dict[str, dict[str, object]]:
     for c, eps in rows.items():
         n, k = len(eps), sum(s for s, _, _ in eps)
         low, high = wilson(k, n) if n else (0.0, 1.0)
+        low, high = max(0.0, low), min(1.0, high)  # -0.0 at k = 0
         out[c] = {
             "episodes": n,
             "successes": k,
