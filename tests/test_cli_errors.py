@@ -472,6 +472,42 @@ def test_issue20_options_are_one_line(
     assert not (tmp_path / "out").exists()
 
 
+# ----- issue 39: --takeover with options that cannot go together --------------------------------------------
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["serve", "--takeover", "alarm"], "--driver expert has no policy; add --driver policy"),
+        (["collect", "--takeover", "alarm", "--out", "OUT"], "add --driver policy or dagger"),
+        (["run", "--takeover", "random", "--out", "OUT"], "add --collect.driver policy or dagger"),
+        (
+            ["serve", "--driver", "policy", "--takeover", "random", "--takeover-match", "OUT"],
+            "--takeover-count",
+        ),
+        (["serve", "--driver", "policy", "--takeover", "alarm", "--takeover-probes", "OUT"], "its --probes"),
+        (
+            ["serve", "--driver", "policy", "--takeover", "alarm", "--takeover-stall", "0"],
+            "--takeover-stall must",
+        ),
+        (
+            ["serve", "--driver", "policy", "--takeover", "random", "--takeover-count", "0"],
+            "--takeover-count must",
+        ),
+        (
+            ["collect", "--driver", "policy", "--takeover", "alarm", "--takeover-steps", "0", "--out", "OUT"],
+            "--takeover-steps must",
+        ),
+    ],
+)
+def test_takeover_combinations_are_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: list[str], message: str
+) -> None:
+    argv = [str(tmp_path / "out") if a == "OUT" else a for a in argv]
+    if argv[0] == "serve":
+        argv += ["--probes", str(tmp_path / "probes")]  # none there: the options fail first
+    assert message in one_line_error(capsys, argv)
+    assert not (tmp_path / "out").exists()
+
+
 def test_config_files_that_crashed_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     binary = tmp_path / "c.json"
     binary.write_bytes(bytes(range(256)))

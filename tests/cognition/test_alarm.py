@@ -11,6 +11,7 @@ from tests.collection.fakes import make_fake_worker
 
 from vlaprobe.cognition.alarm import AlarmRule, CognitionSupervisor
 from vlaprobe.cognition.core import CognitionStep, Violation
+from vlaprobe.cognition.subgoals import Event
 from vlaprobe.collection.collect import collect
 from vlaprobe.collection.store import ActivationStore
 from vlaprobe.collection.takeovers import matched_counts
@@ -38,6 +39,14 @@ def test_the_alarm_names_the_rules_of_a_held_violation() -> None:
     hits = [(t, a) for t, a in enumerate(alarms) if a is not None]
     assert [t for t, _ in hits] == [4]  # held 3 steps; at most once
     assert hits[0][1].rules == ("on_and_inside",) and hits[0][1].atoms == ("on(a,b)",)
+
+
+def test_an_event_fires_at_once_and_its_reason_names_the_kind_once() -> None:
+    rule = AlarmRule(stall=100, hold=3, most=2)
+    event = Event("regression", 3, "regression: grasped(a) no longer done")
+    alarm = rule.check(CognitionStep(3, (), (), (), (), 0.0, (event,), False), acting=False)
+    assert alarm is not None and alarm.kind == "regression"
+    assert alarm.text() == "regression: grasped(a) no longer done"
 
 
 def _config(out: Path, **takeover: object) -> CollectConfig:

@@ -56,6 +56,8 @@ class Run:
     two_columns_at_1024: bool = False
     rerun_frames: int = 0
     reconnected: bool = False
+    takeover_steps: list[int] = field(default_factory=list)
+    """Steps checked in the takeover panel (a server with --takeover alarm)."""
 
 
 def attach_console(page: Any, run: Run) -> None:
@@ -236,8 +238,8 @@ def check_rerun(page: Any, run: Run, timeout_s: float) -> None:
             page.keyboard.press("ArrowRight")
 
 
-def check_reconnect(page: Any, run: Run, restart: Callable[[], None]) -> None:
-    """The server restarts: the page shows it is reconnecting, comes back by itself and lists the recording.
+def reconnect(page: Any, run: Run, restart: Callable[[], None]) -> None:
+    """The server restarts: the page shows it is reconnecting and comes back by itself.
 
     While the server is down Chromium logs each failed WebSocket attempt as a console error: those, and only
     those, are expected.
@@ -248,11 +250,57 @@ def check_reconnect(page: Any, run: Run, restart: Callable[[], None]) -> None:
     page.wait_for_selector("[data-testid=connection][data-state=reconnecting]", timeout=30_000)
     restart_thread.join()
     page.wait_for_selector("[data-testid=connection][data-state=open]", timeout=60_000)
-    page.wait_for_selector(f"[data-testid=episode][data-id='{run.episode_id}']", timeout=30_000)
     outage = run.console_errors[before:]
     del run.console_errors[before:]
     run.console_errors += [e for e in outage if "WebSocket connection to" not in e]
+
+
+def check_reconnect(page: Any, run: Run, restart: Callable[[], None]) -> None:
+    """The server restarts: the page reconnects by itself and lists the recording again."""
+    reconnect(page, run, restart)
+    page.wait_for_selector(f"[data-testid=episode][data-id='{run.episode_id}']", timeout=30_000)
     run.reconnected = True
+
+
+def check_takeover(
+    page: Any, run: Run, restart: Callable[[], None], max_steps: int, timeout_s: float
+) -> None:
+    """The server restarts with ``--takeover alarm``: a policy episode runs, and at a step under the expert the
+    panel says the expert acts (which takeover, which action, why) with the alarms so far; at the alarm's own
+    step the policy acts. Compared with the server's record."""
+    reconnect(page, run, restart)
+    page.wait_for_function(
+        "() => [...document.querySelectorAll('[data-testid=driver-select] option')].map((o) => o.value).join() === 'policy'",
+        timeout=30_000,
+    )
+    page.select_option("[data-testid=task-select]", "0")
+    page.select_option("[data-testid=init-select]", "0")
+    page.fill("input[placeholder=server]", str(max_steps))
+    page.click("[data-testid=start]")
+    page.wait_for_function(
+        "() => document.querySelector('[data-testid=stream-banner]')?.textContent.includes('takeover alarm')",
+        timeout=int(timeout_s * 1000),
+    )
+    page.wait_for_selector("[data-testid=summary]", timeout=int(timeout_s * 1000))
+    live = [e for e in get_json(f"{run.base}/api/episodes") if e["source"] == "live"]
+    newest = max(live, key=lambda e: e["created"] + e["id"])["id"]
+    steps = get_json(f"{run.base}/api/episodes/{newest}")["steps"]
+    under = [k for k, s in enumerate(steps) if s["takeover"] is not None]
+    assert under, "no takeover in the episode: the check proves nothing"
+    for k in (under[0], under[-1]):
+        go_to(page, k)
+        t = steps[k]["takeover"]
+        acting = page.locator("[data-testid=acting]")
+        assert acting.get_attribute("data-who") == "expert", k
+        text = acting.inner_text()
+        assert f"takeover {t['index']}, action {t['steps']} of" in text and t["reason"] in text, text
+        alarms = [s["alarm"] for s in steps[: k + 1] if s["alarm"] is not None]
+        shown = page.locator("[data-testid=alarms] li.alarm").all_inner_texts()
+        assert len(shown) == len(alarms) and alarms[-1]["reason"] in shown[0], shown
+        run.takeover_steps.append(k)
+    page.screenshot(path=str(run.out / "takeover.png"))
+    go_to(page, under[0] - 1)  # the alarm's step: the policy executed its action
+    assert page.locator("[data-testid=acting]").get_attribute("data-who") == "policy"
 
 
 def open_and_replay(page: Any, run: Run, record: dict, timeout_s: float) -> None:
@@ -282,11 +330,13 @@ def run_browser(
     episode_timeout_s: float = 240,
     restart: Callable[[], None] | None = None,
     rerun: bool = True,
+    takeover: Callable[[], None] | None = None,
 ) -> Run:
     """The whole end-to-end scenario against the server at ``base``; screenshots go to ``out``.
 
     ``restart`` (optional) restarts the server on the same port, for the reconnect check at the end; ``rerun``
-    re-runs the first store episode (the server needs ``--store``).
+    re-runs the first store episode (the server needs ``--store``); ``takeover`` (optional) restarts it with
+    ``--driver policy --takeover alarm``, for the takeover panel's check last.
     """
     from playwright.sync_api import sync_playwright
 
@@ -321,6 +371,8 @@ def run_browser(
                 check_rerun(page, run, episode_timeout_s)
             if restart is not None:
                 check_reconnect(page, run, restart)
+            if takeover is not None:
+                check_takeover(page, run, takeover, 16, episode_timeout_s)
             ctx.close()
     finally:
         shutil.rmtree(profile, ignore_errors=True)

@@ -116,6 +116,8 @@ class Serve:
         self.base = f"http://127.0.0.1:{self.port}"
         self.proc: subprocess.Popen | None = None
         self.log_path = tmp / "serve.log"
+        self.extra: list[str] = []
+        """More options of the server (``restart(extra)`` changes them)."""
 
     def start(self, timeout_s: float = 240) -> None:
         cmd = [
@@ -127,6 +129,7 @@ class Serve:
             "--host", "127.0.0.1",
             "--port", str(self.port),
             "--model", "tiny",
+            *self.extra,
         ]  # fmt: skip
         with open(self.log_path, "a") as log:
             self.proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
@@ -155,8 +158,10 @@ class Serve:
             self.proc.wait()
         self.proc = None
 
-    def restart(self) -> None:
+    def restart(self, extra: list[str] | None = None) -> None:
         self.stop()
+        if extra is not None:
+            self.extra = extra
         self.start()
 
 
@@ -178,8 +183,15 @@ def test_live_episode_timeline_replay_and_reconnect_in_chromium(server: Serve) -
     assert AXE.is_file(), f"axe-core is missing ({AXE}): run `cd web && npm ci`"
     if OUT.exists():
         shutil.rmtree(OUT)
+    takeover = ["--driver", "policy", "--takeover", "alarm", "--takeover-stall", "2", "--takeover-steps", "4"]
     run = run_browser(
-        server.base, OUT, max_steps=30, min_steps=10, episode_timeout_s=240, restart=server.restart
+        server.base,
+        OUT,
+        max_steps=30,
+        min_steps=10,
+        episode_timeout_s=240,
+        restart=server.restart,
+        takeover=lambda: server.restart(takeover),
     )
     assert run.distinct_frames >= 10, run.distinct_frames
     assert run.saw_turned_on, "no atom was shown as just turned true"
@@ -193,6 +205,13 @@ def test_live_episode_timeline_replay_and_reconnect_in_chromium(server: Serve) -
     assert run.two_columns_at_1024, "the beliefs collapse to one column at 1024 px"
     assert run.rerun_frames >= 10, run.rerun_frames
     assert run.focus["pinned"] > 0 and run.focus["differing"] > 0, run.focus
+    assert len(run.takeover_steps) == 2, "the takeover panel was not checked"
     assert not run.console_errors, run.console_errors
-    for name in ("live-view.png", "timeline.png", "timeline-greyscale.png", "layout-1024.png"):
+    for name in (
+        "live-view.png",
+        "timeline.png",
+        "timeline-greyscale.png",
+        "layout-1024.png",
+        "takeover.png",
+    ):
         assert (OUT / name).stat().st_size > 10_000, name

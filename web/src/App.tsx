@@ -1,5 +1,5 @@
 /**
- * The page's layout: skip links, the control bar, the stream banner, then camera and cognition (left) beside
+ * The page's layout: skip links, the control bar, the stream banner, then camera, takeover and cognition (left) beside
  * the timeline and the beliefs (right), and the episodes list. The state lives in `useAppState`.
  */
 import { Beliefs } from "./components/Beliefs";
@@ -8,6 +8,7 @@ import { Cognition } from "./components/Cognition";
 import { ControlBar } from "./components/ControlBar";
 import { Episodes } from "./components/Episodes";
 import { Errors, StreamBanner } from "./components/StreamBanner";
+import { TakeoverPanel } from "./components/Takeover";
 import { Timeline } from "./components/Timeline";
 import { DEFAULT_FADE_STEPS } from "./lib/flips";
 import { caption } from "./lib/status";
@@ -61,6 +62,7 @@ export function App({ store }: { store: Store }) {
             caption={caption(episode, index, s.paused && !snap.replay)}
             step={episode?.steps[index] ?? null}
           />
+          {episode && <TakeoverPanel episode={episode} index={index} length={snap.hello?.takeover?.steps ?? null} />}
           {episode && <Cognition episode={episode} index={index} />}
         </div>
         <div className="right">

@@ -26,6 +26,8 @@ export type ClientMessage =
   | Tagged<P.ReplayCommand>;
 
 export type Violation = P.Violation;
+export type Alarm = P.Alarm;
+export type Takeover = P.Takeover;
 export type SubgoalState = P.SubgoalState;
 export type EpisodeEvent = P.Event;
 export type EpisodeListItem = P.EpisodeListItem;

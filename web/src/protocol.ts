@@ -89,12 +89,26 @@ export interface EpisodeEnd {
  */
 export interface EpisodeSummary {
   agreement: number;
+  expert_steps?: number;
   goal_step_predicted: number | null;
   goal_step_truth: number | null;
   success_step?: number | null;
+  takeovers?: Takeover[];
   violations: {
     [k: string]: number | undefined;
   };
+}
+/**
+ * One handover of the policy's control to the scripted expert (``--takeover``).
+ *
+ * This interface was referenced by `Protocol`'s JSON-Schema
+ * via the `definition` "Takeover".
+ */
+export interface Takeover {
+  index: number;
+  reason: string;
+  start: number;
+  steps: number;
 }
 /**
  * This interface was referenced by `Protocol`'s JSON-Schema
@@ -113,6 +127,7 @@ export interface EpisodeStart {
   store_episode?: string | null;
   subgoals: SubgoalInfo[];
   suite?: string;
+  takeover?: "none" | "alarm" | "random";
   task: number;
   type?: "episode_start";
 }
@@ -148,11 +163,13 @@ export interface SubgoalInfo {
  */
 export interface Step {
   action: number[] | null;
+  alarm?: Alarm | null;
   beliefs: BeliefDelta;
   drop_left?: number;
   episode_id: string;
   events: Event[];
   flips: Flips;
+  handover?: ("to_expert" | "to_policy") | null;
   image?: string | null;
   perturbed?: boolean;
   predicted: Prediction;
@@ -163,6 +180,7 @@ export interface Step {
   step: number;
   subgoals: SubgoalState[];
   t: number;
+  takeover?: Takeover | null;
   timings: Timings;
   truth: HeadBits | null;
   truth_events?: Event[];
@@ -170,6 +188,18 @@ export interface Step {
   truth_subgoals?: SubgoalState[];
   type?: "step";
   violations: Violation[];
+}
+/**
+ * The cognition's alarm (``--takeover alarm``), read on the predictions: why it fired.
+ *
+ * This interface was referenced by `Protocol`'s JSON-Schema
+ * via the `definition` "Alarm".
+ */
+export interface Alarm {
+  atoms: string[];
+  kind: "stall" | "regression" | "dropped" | "violation";
+  reason: string;
+  rules: string[];
 }
 /**
  * This interface was referenced by `Protocol`'s JSON-Schema
@@ -289,8 +319,10 @@ export interface Hello {
   model_id: string;
   num_init_states: number;
   probes: ProbeInfo;
+  protocol?: number;
   running: Running | null;
   suite?: string;
+  takeover?: TakeoverSettings | null;
   tasks: TaskInfo[];
   type?: "hello";
   version: string;
@@ -320,6 +352,20 @@ export interface HeadInts {
 export interface Running {
   episode_id: string;
   paused?: boolean;
+}
+/**
+ * The server's ``--takeover`` (hello.takeover).
+ *
+ * This interface was referenced by `Protocol`'s JSON-Schema
+ * via the `definition` "TakeoverSettings".
+ */
+export interface TakeoverSettings {
+  count: number;
+  hold: number;
+  mode: "alarm" | "random";
+  most: number;
+  stall: number;
+  steps: number;
 }
 /**
  * This interface was referenced by `Protocol`'s JSON-Schema

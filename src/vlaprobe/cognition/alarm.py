@@ -38,6 +38,10 @@ class Alarm:
     atoms: tuple[str, ...] = ()
     """The beliefs involved (the violation's atoms, or the stalled subgoal)."""
 
+    def text(self) -> str:
+        """The takeover's recorded reason, e.g. ``"stall: no subgoal done for 40 steps (next: ...)"``."""
+        return f"{self.kind}: {self.reason}"
+
 
 class AlarmRule:
     """Fires on stalls, regressions, drops and held violations; at most ``most`` times per episode."""
@@ -68,7 +72,7 @@ class AlarmRule:
     def _why(self, step: CognitionStep, t: int) -> Alarm | None:
         for e in step.events:
             if e.kind in REACTIVE:
-                return Alarm(e.kind, e.message)
+                return Alarm(e.kind, e.message.removeprefix(f"{e.kind}: "))  # text() prefixes the kind
         held = [v for v in step.violations if t - v.since + 1 >= self.hold]
         if held:
             rules = tuple(sorted({v.rule for v in held}))
@@ -103,7 +107,7 @@ class CognitionSupervisor:
             a = self.readout.assign(record.hidden)
             obj, act = a.values["object"], a.values["action"]
         alarm = self.rule.check(self.cognition.step(obj, act), record.takeover is not None)
-        return None if alarm is None else f"{alarm.kind}: {alarm.reason}"
+        return None if alarm is None else alarm.text()
 
 
 def collect(cfg: CollectConfig) -> object:

@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from vlaprobe.configs.report import ReportConfig
     from vlaprobe.configs.run import RunConfig
     from vlaprobe.configs.serve import ServeConfig
+    from vlaprobe.configs.takeover import TakeoverConfig
     from vlaprobe.configs.train import TrainConfig
 
 MAX_SEED = 2**32 - 8
@@ -207,8 +208,33 @@ def check_collect(cfg: CollectConfig, prefix: str = "") -> None:
         )
     if not (math.isfinite(cfg.ray_gpus_per_worker) and cfg.ray_gpus_per_worker >= 0):
         raise VlaprobeError(f"{f('ray_gpus_per_worker')} must be 0 or more, got {cfg.ray_gpus_per_worker}")
+    check_takeover(cfg.intervention, cfg.driver, "collect", prefix)
     check_env(cfg.env, prefix + "env.")
     check_policy(cfg.policy)
+
+
+def check_takeover(cfg: TakeoverConfig, driver: str, command: str, prefix: str = "") -> None:
+    """``--takeover`` and its settings (``command``: "collect" or "serve", whose drivers and options differ;
+    ``prefix``: the driver's flag prefix, the takeover's flags have none)."""
+    if cfg.takeover == "none":
+        return
+    flag = _flag(prefix, "driver")
+    drivers = f"{flag} policy" + (" or dagger" if command == "collect" else "")
+    if driver == "expert":
+        raise VlaprobeError(
+            f"--takeover {cfg.takeover} hands the policy's control to the scripted expert, but {flag} expert "
+            f"has no policy; add {drivers}"
+        )
+    for name in ("takeover_steps", "takeover_most", "takeover_stall", "takeover_hold", "takeover_count"):
+        at_least(getattr(cfg, name), 1, _flag("", name))
+    if command == "serve" and cfg.takeover_match is not None:
+        raise VlaprobeError(
+            "--takeover-match matches a collection's alarm run; serve --takeover random takes --takeover-count"
+        )
+    if command == "serve" and cfg.takeover_probes is not None:
+        raise VlaprobeError(
+            "--takeover-probes is collect's; serve's alarm reads the predictions of its --probes (drop it)"
+        )
 
 
 def check_serve(cfg: ServeConfig) -> None:
@@ -227,6 +253,7 @@ def check_serve(cfg: ServeConfig) -> None:
     if not (math.isfinite(cfg.image_hz) and cfg.image_hz > 0):
         raise VlaprobeError(f"--image-hz must be a positive number, got {cfg.image_hz}")
     _between(cfg.replay_hz, REPLAY_HZ[0], REPLAY_HZ[1], "--replay-hz", closed=True)
+    check_takeover(cfg.intervention, cfg.driver, "serve")
     check_env(cfg.env)
     if cfg.recordings is not None:  # a folder the user named (the default sits beside the probes)
         check_output_folder(cfg.recordings, "--recordings")

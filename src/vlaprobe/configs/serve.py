@@ -4,10 +4,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
+
+import tyro
 
 from vlaprobe.configs.env import EnvConfig
 from vlaprobe.configs.monitor import CognitionConfig
+from vlaprobe.configs.takeover import TakeoverConfig
 
 LiveDriver = Literal["expert", "policy"]
 """Who acts in a live episode: the scripted expert or the VLA itself (DAgger is for collection only)."""
@@ -47,7 +50,11 @@ class ServeConfig:
     """Folder of recorded live episodes (one folder per episode). Default: ``live`` beside the probe folder.
     Recordings are private to the server's user: folders 700, files 600."""
     driver: LiveDriver = "expert"
-    """Driver of episodes started without one (the paper's client): the scripted expert or the VLA itself."""
+    """Driver of episodes started without one (the paper's client): the scripted expert or the VLA itself
+    (--takeover needs "policy")."""
+    intervention: Annotated[TakeoverConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=TakeoverConfig)
+    """When the scripted expert takes over from the policy (--takeover alarm|random, docs/failures.md): the
+    alarm reads the cognition on the probes' predictions; the random control takes --takeover-count."""
     object_layer: int | None = None
     """Hidden state the object probe reads; default: its ``default_layer`` (earliest tied with the best)."""
     action_layer: int | None = None

@@ -66,7 +66,7 @@ class Commands:
     def start(self, client: Client, cmd: P.StartCommand) -> None:
         sim = self.engine.simulator
         task = sim.resolve_task(cmd.task)
-        sim.check_start(task, cmd.init, cmd.max_steps)
+        sim.check_start(task, cmd.init, cmd.max_steps, cmd.driver)
         seed = self.rng.randrange(2**31)
         self.session.start(
             task,

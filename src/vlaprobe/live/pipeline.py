@@ -17,7 +17,9 @@ import numpy as np
 from vlaprobe.cognition.core import CognitionStep, Violation
 from vlaprobe.cognition.plan import TaskGoal
 from vlaprobe.cognition.subgoals import Event, SubgoalState
+from vlaprobe.configs.takeover import TakeoverMode
 from vlaprobe.live import protocol as P
+from vlaprobe.live.takeover import LiveTakeovers, TakeoverTrack, alarm_message
 from vlaprobe.rollout import StepRecord, StepTimings, SuccessTracker
 from vlaprobe.symbols import HEADS
 
@@ -80,6 +82,10 @@ class EpisodeSpec:
     """Atom names per head, in vocabulary order."""
     key: str = ""
     """Store episode key (store source only)."""
+    takeover: TakeoverMode = "none"
+    """Who hands the policy's control to the scripted expert (``serve --takeover``; live source only)."""
+    seed: int = 0
+    """The episode's seed (live source: it also draws the random control's takeover rows)."""
 
 
 def _ms(timings: StepTimings | None, name: str) -> float:
@@ -127,6 +133,9 @@ class StepBuilder:
     episode_id: str
     readout: Readout
     make_cognition: MakeCognition
+    takeovers: LiveTakeovers | None = None
+    """Who asks for takeovers in this episode (``serve --takeover``); None: nobody."""
+    _track: TakeoverTrack = field(default_factory=TakeoverTrack)
     _prev: dict[str, np.ndarray] = field(default_factory=dict)
     _prev_truth: dict[str, np.ndarray] = field(default_factory=dict)
     _violations: Counter[str] = field(default_factory=Counter)
@@ -159,6 +168,7 @@ class StepBuilder:
             subgoals=[P.SubgoalInfo(index=int(g.index), name=str(g.name)) for g in subgoals],
             goal_objects=s.goal.objects(),
             store_episode=f"{STORE_PREFIX}{s.key}" if s.source == "store" and s.key else None,
+            takeover=s.takeover,
         )
 
     def _cognition(self) -> EpisodeCognition:
@@ -177,6 +187,8 @@ class StepBuilder:
         values = {h: np.asarray(reading[h].values, bool) for h in HEADS}
         cog = self._cognition()
         c = cog.step(values["object"], values["action"])
+        alarm = None if self.takeovers is None else self.takeovers.observe(rec, c)
+        taking, handover = self._track.add(rec)
         t2 = time.perf_counter()
         truth, truth_events, ct = None, [], None
         if rec.object_atoms is not None and rec.action_atoms is not None:
@@ -229,6 +241,9 @@ class StepBuilder:
             truth_subgoals=[] if ct is None else _subgoals(ct.subgoals),
             truth_progress=None if ct is None else float(ct.progress),
             perturbed=bool(rec.perturbed),
+            alarm=alarm_message(alarm),
+            takeover=taking,
+            handover=handover,
             action=_floats(rec.action),
             predicted_action=_floats(rec.predicted_action),
             timings=P.Timings(
@@ -246,6 +261,10 @@ class StepBuilder:
         if truth is not None:
             self._prev_truth = truth
         return msg
+
+    def take_request(self) -> str | None:
+        """The reason of the takeover asked at the latest step, if any (the episode's control carries it)."""
+        return None if self.takeovers is None else self.takeovers.take_request()
 
     def _flips(self, now: dict[str, np.ndarray] | None, prev: dict[str, np.ndarray]) -> P.FlipSet:
         on: list[str] = []
@@ -270,5 +289,7 @@ class StepBuilder:
                 goal_step_truth=self.goal_step_truth,
                 agreement=round(agree / total, 4) if total else 1.0,
                 success_step=self.success.step,
+                takeovers=[t.model_copy() for t in self._track.items],
+                expert_steps=self._track.expert_steps,
             ),
         )

@@ -16,6 +16,10 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
 from vlaprobe.configs.serve import LiveDriver
 
 SCHEMA_FILE = Path(__file__).with_name("protocol.schema.json")
+PROTOCOL_VERSION = 2
+"""Version of the message set, sent as ``hello.protocol``: 2 added the cognition's alarm and the takeovers
+(``--takeover``); a hello without the field is version 1. New fields are optional: a client of an older
+version reads the messages it knows."""
 
 
 class _Model(BaseModel):
@@ -118,6 +122,49 @@ class Event(_Model):
     message: str
 
 
+class Alarm(_Model):
+    """The cognition's alarm (``--takeover alarm``), read on the predictions: why it fired."""
+
+    kind: Literal["stall", "regression", "dropped", "violation"]
+    """"stall": no subgoal done for --takeover-stall steps; "regression", "dropped": the cognition's event;
+    "violation": a consistency rule's violation held --takeover-hold steps."""
+    reason: str
+    """One line, e.g. "no subgoal done for 40 steps (next: grasp akita_black_bowl_1)"."""
+    rules: list[str]
+    """The rules whose violations drove it (kind "violation")."""
+    atoms: list[str]
+    """The beliefs involved: the violations' atoms, or the stalled subgoal."""
+
+
+class Takeover(_Model):
+    """One handover of the policy's control to the scripted expert (``--takeover``)."""
+
+    index: int
+    """1 for the episode's first takeover, 2 for its second, ..."""
+    start: int
+    """The first step whose action the expert executed."""
+    reason: str
+    """The alarm's ``kind: reason``, or "random" (the control)."""
+    steps: int
+    """Actions the expert executed in it: so far (in a step) or in all (in the episode's summary)."""
+
+
+class TakeoverSettings(_Model):
+    """The server's ``--takeover`` (hello.takeover)."""
+
+    mode: Literal["alarm", "random"]
+    steps: int
+    """Actions the expert executes per takeover (--takeover-steps)."""
+    most: int
+    """Most takeovers per episode (--takeover-most)."""
+    stall: int
+    """Mode "alarm": the stall that fires it, in steps (--takeover-stall)."""
+    hold: int
+    """Mode "alarm": steps a violation must hold (--takeover-hold)."""
+    count: int
+    """Mode "random": takeovers per episode at random steps (--takeover-count)."""
+
+
 class Timings(_Model):
     """Milliseconds spent per phase of the step (0 where a source has no such phase, e.g. replay)."""
 
@@ -139,6 +186,10 @@ class EpisodeSummary(_Model):
     """Share of (step, probed atom) pairs where the prediction equals the truth (1.0 without truth)."""
     success_step: int | None = None
     """First step at which the task's own success check held (``steps`` also counts the rows after it)."""
+    takeovers: list[Takeover] = Field(default_factory=list)
+    """The episode's takeovers (``--takeover``), each with its total ``steps``."""
+    expert_steps: int = 0
+    """Actions the scripted expert executed in takeovers."""
 
 
 # -- server -> client -----------------------------------------------------------------------------
@@ -155,6 +206,10 @@ class Hello(_Model):
     drivers: list[LiveDriver]
     default_driver: LiveDriver
     running: Running | None
+    protocol: int = PROTOCOL_VERSION
+    """Version of the message set (absent: 1)."""
+    takeover: TakeoverSettings | None = None
+    """The server's --takeover (then ``drivers`` is ["policy"]); null: the driver acts alone."""
 
 
 class EpisodeStart(_Model):
@@ -176,6 +231,8 @@ class EpisodeStart(_Model):
     mention them."""
     store_episode: str | None = None
     """Source "store": the stored episode this one re-runs (every frame at /api/episodes/{it}/frames/{t})."""
+    takeover: Literal["none", "alarm", "random"] = "none"
+    """Who hands the policy's control to the scripted expert in this episode (hello.takeover's mode)."""
 
 
 class Step(_Model):
@@ -208,6 +265,14 @@ class Step(_Model):
     """A drop forced the gripper open in this step's action."""
     drop_left: int = 0
     """Steps of a requested drop still to come after this one."""
+    alarm: Alarm | None = None
+    """The cognition's alarm fired at this step (``--takeover alarm``): the expert acts from the next step on."""
+    takeover: Takeover | None = None
+    """The takeover under which the scripted expert executed this step's action; null: the episode's driver
+    (the policy) acted."""
+    handover: Literal["to_expert", "to_policy"] | None = None
+    """"to_expert": the first step of a takeover; "to_policy": the first step the policy acts again after one
+    (null on the other steps)."""
     action: list[float] | None
     """Executed action (7,); null on the terminal step."""
     predicted_action: list[float] | None

@@ -23,6 +23,7 @@ from vlaprobe.configs.checks import check_serve, step_limit
 from vlaprobe.configs.env import same_suite
 from vlaprobe.configs.monitor import CognitionConfig
 from vlaprobe.configs.serve import ServeConfig
+from vlaprobe.configs.takeover import TakeoverConfig
 from vlaprobe.envs.base import TaskEnv
 from vlaprobe.envs.checks import check_inits
 from vlaprobe.errors import VlaprobeError
@@ -31,6 +32,7 @@ from vlaprobe.live.app import Engine, Limits, create_app
 from vlaprobe.live.pipeline import EpisodeSpec, MakeCognition, Reading, StepBuilder
 from vlaprobe.live.replay import StoreReplays
 from vlaprobe.live.sources import Simulator, StoreEpisodes
+from vlaprobe.live.takeover import LiveTakeovers
 from vlaprobe.locks import lock_folder
 from vlaprobe.policies.base import VLAPolicy
 from vlaprobe.rollout.runner import MakeDriver, default_threads
@@ -165,7 +167,10 @@ def build_engine(
     make_cognition = cognition_factory(cfg.cognition)
 
     def make_builder(spec: EpisodeSpec, episode_id: str) -> StepBuilder:
-        return StepBuilder(spec, episode_id, readout, make_cognition)
+        takeovers = (
+            None if spec.takeover == "none" else LiveTakeovers(cfg.intervention, spec.seed, spec.max_steps)
+        )
+        return StepBuilder(spec, episode_id, readout, make_cognition, takeovers)
 
     if policy is None:
         import torch
@@ -205,6 +210,7 @@ def build_engine(
         step_limit=step_limit(cfg.env.settle_steps),
         num_init_states=num_init_states,
         suite=cfg.env.suite,
+        takeover=cfg.intervention,
         **extra,
     )
     replays = None if cfg.store is None else store_replays(cfg.store, probes, make_builder)
@@ -223,9 +229,10 @@ def build_engine(
         ),
         image_hz=cfg.image_hz,
         num_init_states=int(num_init_states or 0),
-        drivers=["expert", "policy"],
+        drivers=["policy"] if cfg.intervention.takeover != "none" else ["expert", "policy"],
         default_driver=cfg.driver,
         running=None,
+        takeover=takeover_settings(cfg.intervention),
     )
     return Engine(
         hello=hello,
@@ -233,6 +240,20 @@ def build_engine(
         make_builder=make_builder,
         recordings=recordings_folder(cfg),
         replays=replays,
+    )
+
+
+def takeover_settings(cfg: TakeoverConfig) -> P.TakeoverSettings | None:
+    """hello.takeover: the server's --takeover (None without)."""
+    if cfg.takeover == "none":
+        return None
+    return P.TakeoverSettings(
+        mode=cfg.takeover,
+        steps=cfg.takeover_steps,
+        most=cfg.takeover_most,
+        stall=cfg.takeover_stall,
+        hold=cfg.takeover_hold,
+        count=cfg.takeover_count,
     )
 
 

@@ -155,6 +155,8 @@ class Session:
             for rec in source.records(run.control):
                 msg = builder.step(rec)
                 msg.drop_left = run.control.drop_left
+                if (reason := builder.take_request()) is not None:
+                    run.control.take_over(reason)  # the expert acts from the next step on
                 jpeg = encode_jpeg(rec.model_image)
                 state = msg.model_dump_json(exclude={"image"})
                 if recorder is not None:

@@ -19,6 +19,7 @@ import numpy as np
 
 from vlaprobe.cognition.plan import stored_task_goal, task_goal
 from vlaprobe.configs.collect import DriverName
+from vlaprobe.configs.takeover import TakeoverConfig
 from vlaprobe.envs.base import TaskEnv
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.live import protocol as P
@@ -46,11 +47,14 @@ class Simulator:
         step_limit: int | None = None,
         num_init_states: int | None = None,
         suite: str = "libero_spatial",
+        takeover: TakeoverConfig | None = None,
     ) -> None:
         """``step_limit``: the longest budget the simulator runs (LIBERO's horizon less the settling steps);
         ``num_init_states``: per task, known up front (a bad init is then refused before the episode starts);
-        ``suite``: the LIBERO suite of ``tasks`` (recorded with every episode)."""
+        ``suite``: the LIBERO suite of ``tasks`` (recorded with every episode); ``takeover``: when the
+        scripted expert takes over from the policy (``serve --takeover``; None: never)."""
         self.policy, self.tasks, self.suite = policy, tasks, suite
+        self.takeover = takeover or TakeoverConfig()
         self.runner = EpisodeRunner(policy, EnvCache(make_env, on_new=self._new_env), make_driver)
         self.max_steps, self.post_success_steps = max_steps, post_success_steps
         self.step_limit = step_limit
@@ -79,8 +83,13 @@ class Simulator:
                 return index
         raise VlaprobeError(f"unknown task instruction {task[:80]!r}; send one of hello.tasks or an index")
 
-    def check_start(self, task: int, init: int | str, max_steps: int | None) -> None:
+    def check_start(self, task: int, init: int | str, max_steps: int | None, driver: str) -> None:
         """Refuse, before the episode is queued, a start the simulator cannot run to its end."""
+        if self.takeover.takeover != "none" and driver != "policy":
+            raise VlaprobeError(
+                f"this server hands the policy's control to the expert (--takeover {self.takeover.takeover}); "
+                "start with driver 'policy'"
+            )
         if max_steps is not None and max_steps < 1:
             raise VlaprobeError(f"max_steps must be at least 1, got {max_steps}")
         budget = max_steps or self.max_steps
@@ -95,7 +104,7 @@ class Simulator:
 
     def source(self, task: int, init: int | str, driver: str, max_steps: int | None, seed: int) -> LiveSource:
         """An episode to run (the simulator is built in the episode thread, on the first record)."""
-        self.check_start(task, init, max_steps)
+        self.check_start(task, init, max_steps, driver)
         return LiveSource(self, task, init, driver, max_steps or self.max_steps, seed)
 
     def close(self) -> None:
@@ -130,6 +139,8 @@ class LiveSource:
             suite=sim.suite,
             goal=task_goal(env.goal_conjunction, env.scene),
             atoms={"object": list(vocab.object_atoms), "action": list(vocab.action_atoms)},
+            takeover=sim.takeover.takeover if self.driver == "policy" else "none",
+            seed=seed,
         )
 
     def records(self, control: EpisodeControl | None = None) -> Iterator[StepRecord]:
@@ -141,6 +152,8 @@ class LiveSource:
             max_steps=self.max_steps,
             post_success_steps=self.sim.post_success_steps,
             control=control,
+            takeover=self.spec.takeover,
+            takeover_steps=self.sim.takeover.takeover_steps,
         )
 
 

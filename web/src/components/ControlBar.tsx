@@ -5,7 +5,7 @@
  */
 import { useEffect, useState } from "react";
 import type { ConnectionState } from "../lib/connection";
-import { dropState } from "../lib/status";
+import { chosenDriver, dropState } from "../lib/status";
 import type { AppState } from "../useAppState";
 
 interface Choice {
@@ -43,6 +43,7 @@ function dropBlocked(state: AppState): string {
 function Pickers({ state, choice, set }: { state: AppState; choice: Choice; set: (p: Partial<Choice>) => void }) {
   const hello = state.snap.hello;
   const busy = state.running;
+  const driver = chosenDriver(choice.driver, hello?.drivers ?? [], hello?.default_driver);
   return (
     <>
       <label className="task">
@@ -70,7 +71,7 @@ function Pickers({ state, choice, set }: { state: AppState; choice: Choice; set:
         <span>Driver</span>
         <select
           data-testid="driver-select"
-          value={choice.driver || hello?.default_driver || "expert"}
+          value={driver}
           disabled={busy}
           onChange={(e) => set({ driver: e.target.value })}
         >
@@ -93,6 +94,7 @@ export function ControlBar({ state }: { state: AppState }) {
   const hello = snap.hello;
   const open = snap.connection === "open";
   const blocked = dropBlocked(state);
+  const driver = chosenDriver(choice.driver, hello?.drivers ?? [], hello?.default_driver);
   const live = snap.live;
   const drop = live && !snap.replay ? dropState(live, live.steps.length - 1, state.dropRequested) : null;
   const start = () => {
@@ -101,7 +103,7 @@ export function ControlBar({ state }: { state: AppState }) {
       type: "start",
       task: choice.task,
       init: choice.init === "random" ? "random" : parseInt(choice.init, 10),
-      driver: (choice.driver || hello?.default_driver || "expert") as "expert" | "policy",
+      driver: driver as "expert" | "policy",
       max_steps: Number.isFinite(steps) && steps > 0 ? steps : null,
     });
   };

@@ -21,6 +21,7 @@ export function StreamBanner({ state, onClose }: { state: AppState; onClose: () 
       <strong className="kind">{running ? "● " : ""}{kind.toUpperCase()}</strong>
       <span>
         task {start.task} · init {start.init} · driver {start.driver}
+        {start.takeover && start.takeover !== "none" ? ` · takeover ${start.takeover}` : ""}
         {start.store_episode ? ` · re-run of ${start.store_episode}` : ""} · {episode.id}
         {!running && !opened ? " · ended" : ""}
       </span>

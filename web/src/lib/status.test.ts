@@ -1,7 +1,7 @@
 import { expect, test } from "vitest";
 import { addStep, newEpisode } from "./episode";
 import { fakeStart, fakeStep } from "./fixtures";
-import { caption, dropState, stepsPhrase, streamKind, successStep, timingParts } from "./status";
+import { caption, chosenDriver, dropState, stepsPhrase, streamKind, successStep, timingParts } from "./status";
 
 const end = (steps: number, success_step: number | null) => ({
   type: "episode_end" as const,
@@ -70,4 +70,12 @@ test("drop indicator: steps left, the reason when nothing was grasped, a pending
   expect(dropState(ep, 3, false)).toEqual({ active: true, left: 2, text: "↓ gripper forced open at step 3, 2 steps left" });
   expect(dropState(ep, 4, false).text).toBe("↓ gripper forced open at step 4, 1 step left"); // it held the object when the drop began
   expect(dropState(ep, 9, false).text).toBe("");
+});
+
+test("the driver a start asks for is one the server offers", () => {
+  expect(chosenDriver("expert", ["expert", "policy"], "expert")).toBe("expert");
+  expect(chosenDriver("", ["expert", "policy"], "policy")).toBe("policy");
+  expect(chosenDriver("expert", ["policy"], "policy")).toBe("policy"); // picked before a --takeover restart
+  expect(chosenDriver("expert", ["policy"], "expert")).toBe("policy");
+  expect(chosenDriver("", [], undefined)).toBe("expert");
 });

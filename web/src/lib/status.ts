@@ -1,6 +1,6 @@
 /**
  * What the page says about the episode: the stream type (live, recorded, store re-run), the caption with the
- * step counts, the summary line, the per-step timings, and the drop indicator.
+ * step counts, the summary line, the per-step timings, the drop indicator, and the driver a start asks for.
  */
 import type { EpisodeEnd, Step } from "../messages";
 import type { EpisodeData } from "./episode";
@@ -99,4 +99,12 @@ function dropLostSomething(episode: EpisodeData, k: number): boolean {
   let i = k;
   while (i > 0 && episode.steps[i - 1]?.perturbed) i--;
   return grasping(episode, Math.max(0, i - 1)) === true;
+}
+
+/** The driver a start asks for: the one picked if the server offers it (a server restarted with `--takeover`
+ * offers only "policy"), else the server's default, else the first it offers. */
+export function chosenDriver(picked: string, offered: readonly string[], fallback: string | undefined): string {
+  if (offered.includes(picked)) return picked;
+  if (fallback !== undefined && (offered.length === 0 || offered.includes(fallback))) return fallback;
+  return offered[0] ?? "expert";
 }

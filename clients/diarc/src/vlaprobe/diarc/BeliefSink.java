@@ -28,6 +28,18 @@ public interface BeliefSink {
     /** The consistency violations active at this step (rule id and message each); called every step. */
     default void violations(int t, List<String> active) {}
 
+    /**
+     * The cognition's alarm fired at step t ({@code serve --takeover alarm}): its kind ("stall", "regression",
+     * "dropped", "violation"), its reason, and the rules and atoms that drove it; the expert acts from t + 1.
+     */
+    default void alarm(int t, String kind, String reason, List<String> rules, List<String> atoms) {}
+
+    /**
+     * Control changed hands at step t: {@code toExpert} true when the scripted expert executes this step's action
+     * (a takeover begins, {@code reason} says why), false when the policy acts again.
+     */
+    default void handover(int t, boolean toExpert, String reason) {}
+
     /** A new episode begins: a DIARC component may clear its WORKING memory here. */
     default void episodeStart(String episodeId, String instruction) {}
 

@@ -20,7 +20,7 @@ import java.util.concurrent.TimeUnit;
  * handing each step's diff to a {@link BeliefSink}. JDK only ({@code java.net.http.WebSocket}).
  *
  * <pre>
- *   java -cp out vlaprobe.diarc.LiveClient ws://127.0.0.1:6006/ws [--token T] [--start TASK [--init N]] [--once]
+ *   java -cp out vlaprobe.diarc.LiveClient ws://127.0.0.1:6006/ws [--token T] [--start TASK [--init N] [--driver D]] [--once]
  * </pre>
  */
 public final class LiveClient implements WebSocket.Listener {
@@ -133,7 +133,19 @@ public final class LiveClient implements WebSocket.Listener {
             Map<String, Object> m = Json.object(v);
             active.add(m.get("rule") + ": " + m.get("message"));
         }
-        sink.violations(((Double) step.get("t")).intValue(), active);
+        int t = ((Double) step.get("t")).intValue();
+        sink.violations(t, active);
+        Map<String, Object> alarm = Json.object(step.get("alarm"));
+        if (!alarm.isEmpty()) {
+            List<String> rules = new ArrayList<>(strings(alarm.get("rules")));
+            List<String> atoms = new ArrayList<>(strings(alarm.get("atoms")));
+            sink.alarm(t, String.valueOf(alarm.get("kind")), String.valueOf(alarm.get("reason")), rules, atoms);
+        }
+        Object handover = step.get("handover");
+        if (handover != null) {
+            String reason = String.valueOf(Json.object(step.get("takeover")).getOrDefault("reason", ""));
+            sink.handover(t, "to_expert".equals(handover), reason);
+        }
     }
 
     private static Set<String> strings(Object v) {
@@ -158,20 +170,31 @@ public final class LiveClient implements WebSocket.Listener {
         public void violations(int t, List<String> active) {
             if (!active.isEmpty()) System.out.println("VIOLATIONS t=" + t + " " + active);
         }
+
+        @Override
+        public void alarm(int t, String kind, String reason, List<String> rules, List<String> atoms) {
+            System.out.println("ALARM t=" + t + " " + kind + ": " + reason + " rules=" + rules + " atoms=" + atoms);
+        }
+
+        @Override
+        public void handover(int t, boolean toExpert, String reason) {
+            System.out.println("HANDOVER t=" + t + (toExpert ? " to_expert (" + reason + ")" : " to_policy"));
+        }
     }
 
     public static void main(String[] args) throws Exception {
         if (args.length < 1) {
-            System.err.println("usage: LiveClient ws://HOST:PORT/ws [--token T] [--start TASK [--init N]] [--once]");
+            System.err.println("usage: LiveClient ws://HOST:PORT/ws [--token T] [--start TASK [--init N] [--driver D]] [--once]");
             System.exit(2);
         }
-        String url = args[0], token = null, task = null, init = "\"random\"";
+        String url = args[0], token = null, task = null, init = "\"random\"", driver = null;
         boolean once = false;
         for (int k = 1; k < args.length; k++) {
             switch (args[k]) {
                 case "--token": token = args[++k]; break;
                 case "--start": task = args[++k]; break;
                 case "--init": init = args[++k]; break;
+                case "--driver": driver = args[++k]; break;
                 case "--once": once = true; break;
                 default: System.err.println("unknown argument " + args[k]); System.exit(2);
             }
@@ -179,7 +202,8 @@ public final class LiveClient implements WebSocket.Listener {
         String start = null;
         if (task != null) {
             String t = task.matches("\\d+") ? task : Json.quote(task);
-            start = "{\"type\":\"start\",\"task\":" + t + ",\"init\":" + init + "}";
+            String d = driver == null ? "" : ",\"driver\":" + Json.quote(driver);
+            start = "{\"type\":\"start\",\"task\":" + t + ",\"init\":" + init + d + "}";
         }
         LiveClient client = new LiveClient(new PrintingSink());
         WebSocket ws = client.connect(url, token, start);
