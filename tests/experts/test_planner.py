@@ -51,6 +51,7 @@ def test_order_opens_first_places_then_closes_last() -> None:
         goal(("Close", DRAWER), ("In", "porcelain_mug_1", DRAWER), ("TurnOn", "flat_stove_1")), SCENE
     )
     assert steps == [
+        Step("clear", "porcelain_mug_1", DRAWER),  # out of the way of the drawer, if it stands there
         Step("open", DRAWER),  # putting something In a drawer opens it first
         Step("turn_on", "flat_stove_1"),
         Step("rim_place", "porcelain_mug_1", DRAWER),
@@ -62,7 +63,7 @@ def test_two_objects_into_one_basket_and_a_repeated_open_are_planned_once_each()
     steps = plan_steps(
         goal(("In", "cream_cheese_1", DRAWER), ("Open", DRAWER), ("In", "akita_black_bowl_1", DRAWER)), SCENE
     )
-    assert [s.skill for s in steps] == ["open", "rim_place", "body_place"]
+    assert [s.skill for s in steps] == ["clear", "clear", "open", "rim_place", "body_place"]
 
 
 @pytest.mark.parametrize(

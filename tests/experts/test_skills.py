@@ -59,3 +59,38 @@ def test_close_pushes_an_open_drawer_shut() -> None:
             steps += 1
         assert env.libero_predicate("Close", region), env.world_state().container_qpos[k]
         assert np.isfinite(env.world_state().container_qpos[k])
+
+
+def test_the_push_starts_deeper_inside_the_rim_when_the_hand_sits_on_a_handle() -> None:
+    """LIBERO-goal task 5, init 3: the plate stands close to the cabinet; the first descent inside its rim sits on
+    a drawer's handle, the next starts deeper and pushes the plate to the front of the stove."""
+    with LiberoTaskEnv(5, EnvConfig(suite="libero_goal", render=False)) as env:
+        obs = env.reset(3)
+        expert = ScriptedExpert(env)
+        steps = 0
+        while steps < 300 and not obs.success:
+            obs = env.step(expert.act())
+            steps += 1
+        assert obs.success, f"not solved in {steps} steps (phase {expert.phase})"
+        assert expert.skills[0]._deeper > 0.0  # a blocked descent moved the start inside the rim
+
+
+def test_the_wrist_turns_the_way_its_range_allows() -> None:
+    """Of the two finger directions that grip alike, the hand takes the one its last joint can reach (a world
+    turn by +a turns that joint by -a)."""
+    with LiberoTaskEnv(0, EnvConfig(suite="libero_goal", render=False)) as env:
+        env.reset(0)
+        skill = Drawer(env, "wooden_cabinet_1_middle_region")
+        data, model = env.sim_env.sim.data._data, env.sim_env.sim.model._model
+        data.qpos[skill._wrist.qposadr[0]] = model.jnt_range[skill._wrist.id][1] - 0.2  # near its upper limit
+        env.sim_env.sim.forward()
+        current = skill._current_finger_axis()
+
+        def turned(angle: float) -> np.ndarray:  # the finger axis turned by ``angle`` about the vertical
+            c, s = np.cos(angle), np.sin(angle)
+            return np.array([c * current[0] - s * current[1], s * current[0] + c * current[1], 0.0])
+
+        assert np.allclose(
+            skill._wrist_axis(turned(0.4)), turned(0.4)
+        )  # the joint turns down: the small turn
+        assert np.allclose(skill._wrist_axis(turned(-0.4)), -turned(-0.4))  # up past its limit: the other way

@@ -23,6 +23,7 @@ from vlaprobe.experts.geometry import (
     POS_TOL,
     ROT_SCALE,
     STALL_STEPS,
+    WRIST_MARGIN,
     _down_rotation,
     _rotvec,
 )
@@ -45,6 +46,7 @@ class ArmSkill:
         self._eef_site = int(robot.eef_site_id)
         self._gripper_geoms = np.array([self._model.geom(g).id for g in robot.gripper.contact_geoms])
         self._robot_base = self._model.body(robot.robot_model.root_body).id
+        self._wrist = self._model.joint(robot.robot_joints[-1])  # turns the hand about its pointing axis
         held = sim_env.obj_body_id[avoid] if avoid is not None else self._robot_base
         self._obstacles = self._obstacle_geoms(self._robot_base, held)
         self.phase = "start"
@@ -86,6 +88,21 @@ class ArmSkill:
         axis = self._data.site_xmat[self._eef_site].reshape(3, 3)[:, 0].copy()  # the fingers open along x
         axis[2] = 0.0
         return axis / np.linalg.norm(axis)
+
+    def _wrist_axis(self, axis: np.ndarray) -> np.ndarray:
+        """``axis`` or ``-axis`` (the fingers are symmetric: either grips), whichever the hand, pointing down,
+        turns to the least while its last joint stays ``WRIST_MARGIN`` inside its range (turning the world
+        yaw by +a turns that joint by -a)."""
+        current = self._current_finger_axis()
+        q = float(self._data.qpos[self._wrist.qposadr[0]])
+        low, high = self._model.jnt_range[self._wrist.id] + np.array([WRIST_MARGIN, -WRIST_MARGIN])
+        options = []
+        for candidate in (axis, -axis):
+            turn = float(
+                np.arctan2(current[0] * candidate[1] - current[1] * candidate[0], current @ candidate)
+            )
+            options.append((not low <= q - turn <= high, abs(turn), candidate))
+        return min(options, key=lambda o: (o[0], o[1]))[2]
 
     def _obstacle_boxes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World centres, rotations and half sizes of the obstacle geoms' bounding boxes (exact for boxes)."""

@@ -40,5 +40,4 @@ class BodyPickPlace(RimPickPlace):
             self._blocked.clear()
         self._side = axis
         self._depth = min(BODY_DEPTH, max(0.5 * float(size[2]), BODY_MIN_DEPTH))
-        current = self._current_finger_axis()
-        self._finger_axis = axis if axis @ current >= 0 else -axis
+        self._finger_axis = self._wrist_axis(axis)

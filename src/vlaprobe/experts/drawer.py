@@ -25,6 +25,7 @@ from vlaprobe.experts.geometry import (
     CLOSE_STEPS,
     DRAWER_MARGIN,
     DRAWER_PRE,
+    DRAWER_SPEED,
     OPEN,
     OPEN_STEPS,
     PHASE_STEPS,
@@ -71,9 +72,11 @@ class Drawer(ArmSkill):
     def reset(self) -> None:
         """Read the drawer's pose now (a reset places the fixtures) and start from the current state."""
         super().reset()
-        axis = self._data.xmat[self._body].reshape(3, 3) @ np.asarray(self._joint.axis)
+        self._axis = self._data.xmat[self._body].reshape(3, 3) @ np.asarray(self._joint.axis)
         open_rule = self.env.scene.container_articulation[self._k]
-        self._out = -axis if open_rule.below else axis  # the drawer front moves along this when opening
+        self._out = (
+            -self._axis if open_rule.below else self._axis
+        )  # the drawer front moves along this when opening
         self._handle = max(self._geoms, key=lambda g: float(self._geom_box(g)[0] @ self._out))
         up = np.array([0.0, 0.0, 1.0])
         self._home, rot = self._eef()
@@ -83,6 +86,22 @@ class Drawer(ArmSkill):
 
     def _goal_rotation(self) -> np.ndarray:
         return self._frame
+
+    @property
+    def out(self) -> np.ndarray:
+        """The horizontal way the drawer's front moves when opening (world)."""
+        return self._out
+
+    def opened_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """World corners (lo, hi) of the box around the drawer's geoms once opened by this skill
+        (``DRAWER_MARGIN`` past LIBERO's open threshold), from its pose at the last :meth:`reset`."""
+        rule = self.env.scene.container_articulation[self._k]
+        goal = rule.threshold - DRAWER_MARGIN if rule.below else rule.threshold + DRAWER_MARGIN
+        shift = (goal - self._qpos(self.env.world_state())) * self._axis
+        boxes = [self._geom_box(g) for g in self._geoms]
+        lo = np.min([centre - half for centre, half in boxes], axis=0)
+        hi = np.max([centre + half for centre, half in boxes], axis=0)
+        return lo + shift, hi + shift
 
     def _qpos(self, state: WorldState) -> float:
         return float(state.container_qpos[self._k])
@@ -121,7 +140,7 @@ class Drawer(ArmSkill):
             ):
                 self._enter("release")
             else:
-                return self._action(target, grip, speed=0.5)
+                return self._action(target, grip, speed=DRAWER_SPEED)
         if (
             self.phase == "close"
             and (action := self._fingers_then(pos, CLOSE, CLOSE_STEPS, "pull")) is not None
@@ -131,7 +150,7 @@ class Drawer(ArmSkill):
             if self._stuck(-float(pos @ self._out)) or self._phase_steps > PHASE_STEPS:
                 self._enter("regrasp")
             else:
-                return self._action(pos + 0.05 * self._out, CLOSE, speed=0.5)
+                return self._action(pos + 0.05 * self._out, CLOSE, speed=DRAWER_SPEED)
         if self.phase in ("release", "regrasp"):
             if self._phase_steps == 0:
                 self._anchor = pos

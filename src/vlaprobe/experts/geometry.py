@@ -40,6 +40,7 @@ SETTLED_SPEED = 0.003  # metres per step below which the gripper counts as stopp
 DESCEND_XY_TOL = 0.005  # horizontal error that pauses a descent
 DESCEND_STEP = 0.008  # descent speed (metres per step)
 YAW_TOL = 0.06  # orientation reached (radians)
+WRIST_MARGIN = 0.15  # the hand's last joint turns no closer than this to its limits (radians)
 STALL_STEPS = 8  # steps without 1 mm of progress that end a move (something blocks it)
 PHASE_STEPS = 80  # steps after which an approach or descent counts as failed
 MIN_OPENING = 0.001  # finger opening (metres) below which the fingers hold nothing
@@ -108,8 +109,20 @@ PUSH_CLEARANCE = (
 PUSH_HEIGHT = 0.012  # grip point above the object's bottom while pushing
 PUSH_INSIDE = 0.5  # done once the object's origin is within this share of the region's half sizes
 PUSH_STEP = 0.02  # the fingers aim this far ahead along the way to the region (metres)
+PUSH_BLOCKED = 0.02  # a descent stopped this far above its start is blocked (the hand on a handle)
+PUSH_DEEPER = 0.015  # ... and the next starts this much deeper inside the rim (twice at most)
 PUSH_DRIFT = 0.04  # the object this far off the push line: approach again from behind it
 
 # Drawers (opened by their handle from the front).
 DRAWER_PRE = 0.08  # pre-grasp (and retreat) distance in front of the handle
 DRAWER_MARGIN = 0.02  # pull this far past LIBERO's open threshold (metres of slide)
+DRAWER_SPEED = (
+    1.0  # action bound while reaching for the handle and pulling (0.5 took ~20 more steps per opening)
+)
+
+# Clearing the way of a drawer (an object standing where the drawer will open over it).
+CLEAR_GAP = 0.01  # the object is pushed until its box stands this far outside the opened drawer's box
+CLEAR_SIDESTEP = 0.06  # ... and shifted by up to this much along the drawer's other horizontal axis
+CLEAR_TOL = 0.02  # half size of the spot it is pushed to (the push ends within PUSH_INSIDE of it)
+CLEAR_NEIGHBOUR = 0.005  # the pushed object must stay this far from every other object's box
+PUSH_OVER = 0.018  # grip point above a low object behind the pushed one (the fingertips reach 1.2 cm below)

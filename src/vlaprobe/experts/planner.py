@@ -4,8 +4,9 @@ them one after another (:class:`ScriptedExpert`).
 Each conjunct becomes one step: ``Open``/``Close`` a drawer (a door such as the microwave's has no skill), ``TurnOn``/``TurnOff`` an on-off
 fixture, ``In``/``On`` a movable object: a pick-and-place (by the rim for bowls and mugs, by the body for
 anything else), or a push when a plate goes onto a placement region of the table. Putting something ``In`` a
-drawer first opens it. Steps run in the order opening, switching, placing, closing (a drawer is closed after
-what goes into it is in).
+drawer first opens it, after pushing the object out of the way the drawer opens over (when it stands there).
+Steps run in the order clearing, opening, switching, placing, closing (a drawer is closed after what goes into
+it is in).
 """
 
 from __future__ import annotations
@@ -22,8 +23,17 @@ from vlaprobe.experts.base import ArmSkill
 from vlaprobe.symbols import Scene
 from vlaprobe.symbols.goals import GoalConjunction
 
-SkillName = Literal["open", "close", "turn_on", "turn_off", "rim_place", "body_place", "push"]
-ORDER: tuple[SkillName, ...] = ("open", "turn_on", "turn_off", "rim_place", "body_place", "push", "close")
+SkillName = Literal["clear", "open", "close", "turn_on", "turn_off", "rim_place", "body_place", "push"]
+ORDER: tuple[SkillName, ...] = (
+    "clear",
+    "open",
+    "turn_on",
+    "turn_off",
+    "rim_place",
+    "body_place",
+    "push",
+    "close",
+)
 RIM_OBJECTS = ("bowl", "mug")
 """Instance-name parts of the objects picked by their rim (LIBERO names instances ``<category>_<n>``)."""
 PUSHED_OBJECTS = ("plate",)
@@ -57,6 +67,7 @@ def plan_steps(goal: GoalConjunction, scene: Scene) -> list[Step]:
         elif pred in ("In", "On") and args[0] in scene.pickupable:
             what, where = args
             if pred == "In" and where in scene.containers:
+                steps.append(Step("clear", what, where))  # out from under the opened drawer (if it is)
                 steps.append(Step("open", where))
             if pred == "On" and _kind(what, PUSHED_OBJECTS) and where not in scene.tabletop + scene.regions:
                 steps.append(Step("push", what, where))
@@ -97,6 +108,10 @@ def build_skill(env: LiberoTaskEnv, step: Step, seed: int) -> ArmSkill:
     from vlaprobe.experts.rim_pick import RimPickPlace
     from vlaprobe.experts.targets import find_target
 
+    if step.skill == "clear":
+        from vlaprobe.experts.clear import Clear
+
+        return Clear(env, step.subject, step.target, seed)
     if step.skill == "rim_place":
         return RimPickPlace(env, step.subject, find_target(env, step.target), seed)
     if step.skill == "body_place":

@@ -21,13 +21,17 @@ from vlaprobe.experts.geometry import (
     PHASE_STEPS,
     POS_TOL,
     PUSH_BEHIND,
+    PUSH_BLOCKED,
     PUSH_CLEARANCE,
+    PUSH_DEEPER,
     PUSH_DRIFT,
     PUSH_HEIGHT,
     PUSH_INSET,
     PUSH_INSIDE,
+    PUSH_OVER,
     PUSH_STEP,
     RETREAT_HEIGHT,
+    STALL_STEPS,
 )
 from vlaprobe.experts.targets import Target
 from vlaprobe.symbols.world import WorldState
@@ -45,6 +49,7 @@ class Push(ArmSkill):
     def reset(self) -> None:
         super().reset()
         self._direction: np.ndarray = np.zeros(3)
+        self._deeper = 0.0  # how much deeper inside the rim a push starts after blocked descents
         self._enter("approach")
 
     def _inside(self, state: WorldState) -> bool:
@@ -60,11 +65,20 @@ class Push(ArmSkill):
         lo, hi = state.aabb_lo[self._subject], state.aabb_hi[self._subject]
         radius = 0.5 * float(np.max(hi[:2] - lo[:2]))
         start = obj - (radius + PUSH_BEHIND) * self._direction
-        if self._corridor_top(start, start, PUSH_CLEARANCE) > lo[2] + PUSH_CLEARANCE:
-            start = obj - (radius - PUSH_INSET) * self._direction  # something stands behind: from inside
+        behind = self._corridor_top(start, start, PUSH_CLEARANCE)
         start[2] = lo[2] + PUSH_HEIGHT
+        if behind > lo[2] + PUSH_CLEARANCE or self._deeper > 0.0:
+            # Something stands behind (or a descent there was blocked): from inside the rim.
+            start = obj - (radius - PUSH_INSET - self._deeper) * self._direction
+            start[2] = lo[2] + PUSH_HEIGHT
+        elif behind > lo[2] + 0.005:  # something low (a plate's rim): push over it, below the object's top
+            start[2] = min(behind + PUSH_OVER, hi[2] - 0.01)
         self._finger_axis = np.array([-self._direction[1], self._direction[0], 0.0])
         return start
+
+    def _retreat_point(self, pos: np.ndarray) -> np.ndarray:
+        """Where the hand goes once the object is there: ``RETREAT_HEIGHT`` up."""
+        return pos + np.array([0.0, 0.0, RETREAT_HEIGHT])
 
     def _plan(self, state: WorldState, pos: np.ndarray) -> None:
         """The start of a push from where the object now is, and the height to travel there at."""
@@ -74,7 +88,7 @@ class Push(ArmSkill):
     def _decide(self, state: WorldState) -> np.ndarray:
         pos, _ = self._eef()
         if self.phase != "retreat" and self.phase != "done" and self._inside(state):
-            self._anchor = pos + np.array([0.0, 0.0, RETREAT_HEIGHT])
+            self._anchor = self._retreat_point(pos)
             self._enter("retreat")
         if self.phase == "approach":
             if self._phase_steps == 0:
@@ -89,16 +103,25 @@ class Push(ArmSkill):
                 return self._action(above, CLOSE)
         if self.phase == "descend":
             error = float(np.linalg.norm(self._anchor - pos))
-            if error < POS_TOL or self._stuck(error) or self._phase_steps > PHASE_STEPS:
+            stuck = self._stuck(error)
+            if stuck and pos[2] > self._anchor[2] + PUSH_BLOCKED:  # the hand sits on something: start deeper
+                self._deeper = min(self._deeper + PUSH_DEEPER, 2 * PUSH_DEEPER)
+                self._enter("approach")
+                self._plan(state, pos)
+                return self._action(np.append(pos[:2], self._travel), CLOSE)
+            if error < POS_TOL or stuck or self._phase_steps > PHASE_STEPS:
                 self._enter("push")
             else:
-                return self._action(self._anchor, CLOSE, speed=0.5)
+                return self._action(self._anchor, CLOSE, speed=1.0 if error > 0.03 else 0.5)
         if self.phase == "push":
             obj = state.pos[self._subject]
             goal = self._target.point(state, self._data)
             line = obj[:2] - self._anchor[:2]
             drift = abs(float(line @ np.array([-self._direction[1], self._direction[0]])))
-            stalled = self._stuck(float(np.linalg.norm(goal[:2] - obj[:2])))
+            # The fingers start behind the object: it does not move before they reach it.
+            stalled = (
+                self._stuck(float(np.linalg.norm(goal[:2] - obj[:2]))) and self._phase_steps > 2 * STALL_STEPS
+            )
             if drift > PUSH_DRIFT or stalled or self._phase_steps > 4 * PHASE_STEPS:
                 self._enter("approach")
                 self._plan(state, pos)
@@ -106,8 +129,12 @@ class Push(ArmSkill):
             if self._phase_steps == 0:
                 self._integral[:] = 0.0  # the steady offset of the travel is no help against the object
             way = goal[:2] - obj[:2]
+            way /= max(float(np.linalg.norm(way)), 1e-9)
             aim = pos.copy()
-            aim[:2] += PUSH_STEP * way / max(float(np.linalg.norm(way)), 1e-9)
+            # Ahead along the way, and back onto the line through the object's origin (pushing off-centre
+            # turns the object aside).
+            off_line = (pos[:2] - obj[:2]) - float((pos[:2] - obj[:2]) @ way) * way
+            aim[:2] += PUSH_STEP * way - np.clip(off_line, -PUSH_STEP, PUSH_STEP)
             aim[2] = self._anchor[2]
             return self._action(aim, CLOSE, speed=0.5)
         if self.phase == "retreat" and (action := self._retreat(pos, CLOSE)) is not None:

@@ -160,7 +160,7 @@ class RimPickPlace(ArmSkill):
         sides = np.stack([np.cos(angles), np.sin(angles), np.zeros(SIDES)], axis=1)
         best, best_score = (0, GRASP_DEPTHS[0]), -np.inf
         for k, side in enumerate(sides):
-            axis = side if side @ current >= 0 else -side  # the fingers are symmetric: either sign grips
+            axis = self._wrist_axis(side)
             grip = centre + (radius - GRIP_INSET) * side
             grip[2] = hi[2]
             # Geoms within the gripper's horizontal reach from this grip point.
@@ -173,7 +173,7 @@ class RimPickPlace(ArmSkill):
                     points.reshape(-1, 3), box_centre[near], box_rot[near], box_half[near]
                 )
                 per_level = distance.reshape(len(levels), -1).min(axis=1)
-            turn = float(np.arccos(min(1.0, abs(side @ current))))
+            turn = float(np.arccos(np.clip(axis @ current, -1.0, 1.0)))
             reach = float(np.linalg.norm(grip[:2] - base[:2]))
             blocked = any(side @ b > np.cos(BLOCKED_ANGLE) for b in self._blocked)
             for depth in GRASP_DEPTHS:
@@ -189,7 +189,7 @@ class RimPickPlace(ArmSkill):
                     best, best_score = (k, depth), score
         k, self._depth = best
         self._side = sides[k]
-        self._finger_axis = sides[k] if sides[k] @ current >= 0 else -sides[k]
+        self._finger_axis = self._wrist_axis(sides[k])
 
     def _block_side(self) -> None:
         """Give up the current grasp side: back off and plan again avoiding it."""

@@ -14,21 +14,27 @@ from vlaprobe.symbols.world import WorldState
 
 @dataclass(frozen=True)
 class Target:
-    """A place target: row ``index`` of ``scene.tabletop`` (an object; ``site`` is -1) or the MuJoCo site
-    ``site`` of a region (``index`` is -1) with its world half extents ``half`` (LIBERO's ``in_box`` rule)."""
+    """A place target: row ``index`` of ``scene.tabletop`` (an object; ``site`` is -1), the MuJoCo site
+    ``site`` of a region (``index`` is -1) with its world half extents ``half`` (LIBERO's ``in_box`` rule), or a
+    fixed world point ``at`` (a spot of the table, ``half`` around it; ``index`` and ``site`` are -1)."""
 
     name: str
     index: int = -1
     site: int = -1
     half: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    at: tuple[float, float, float] | None = None
 
     @property
     def region(self) -> bool:
-        return self.site >= 0
+        """A place (a region or a point), not an object."""
+        return self.site >= 0 or self.at is not None
 
     def point(self, state: WorldState, data: Any) -> np.ndarray:
-        """The reference point: the object's body origin (as the world state has it) or the site's centre."""
-        return data.site_xpos[self.site].copy() if self.region else state.pos[self.index]
+        """The reference point: the object's body origin (as the world state has it), the site's centre or
+        the fixed point."""
+        if self.at is not None:
+            return np.array(self.at)
+        return data.site_xpos[self.site].copy() if self.site >= 0 else state.pos[self.index]
 
 
 def find_target(env: Any, name: str) -> Target:
