@@ -37,8 +37,11 @@ def test_rules_hold_and_the_goal_is_tracked_on_expert_episodes(suite: SuiteName,
             expert = ScriptedExpert(env, seed=0)
         except VlaprobeError as exc:
             pytest.skip(str(exc))
+        try:  # a goal onto a table region has no atoms to follow: the cognition leaves such episodes out
+            goal = task_goal(env.goal_conjunction, env.scene)
+        except VlaprobeError as exc:
+            pytest.skip(str(exc))
         rows, success_step = expert_rows(env, expert, POST, MAX_STEPS)
-        goal = task_goal(env.goal_conjunction, env.scene)
         vocab = env.labeler.vocabulary
     obj, act = np.array([o for o, _ in rows]), np.array([a for _, a in rows])
     for debounce in (1, DEFAULT_DEBOUNCE):
