@@ -100,7 +100,10 @@ def test_metrics_have_layer_by_atom_shapes_and_intervals(run: dict) -> None:
             assert np.array(s["predicate"]["value"], float).shape == (layers, preds)
             v, lo, hi = (np.array(s["layer"][k], float) for k in ("value", "low", "high"))
             ok = ~np.isnan(lo)
-            assert ok.any() and np.all(lo[ok] <= v[ok] + 1e-9) and np.all(v[ok] <= hi[ok] + 1e-9), (
+            # a percentile interval need not hold its point estimate exactly: at the top of its range the
+            # resampled AUPRC (from per-episode counts) can fall a few 1e-8 below the point (files keep 10 decimals)
+            tol = 1e-6
+            assert ok.any() and np.all(lo[ok] <= v[ok] + tol) and np.all(v[ok] <= hi[ok] + tol), (
                 head,
                 metric,
             )
