@@ -39,8 +39,11 @@ def client(tmp_path: Path) -> Any:
         yield c
 
 
-def test_hello_then_a_whole_episode_in_order(client: TestClient) -> None:
-    with client.websocket_connect("/ws") as ws:
+def test_hello_then_a_whole_episode_in_order(tmp_path: Path) -> None:
+    # paced at 10 ms a step, so the client is caught up at every step (and gets every image) on a loaded machine
+    # too: unpaced, the episode thread could run ahead of the sender and step 0 went out without its frame
+    client = local_client(fake_app(tmp_path, step_seconds=0.01))
+    with client, client.websocket_connect("/ws") as ws:
         hello = P.Hello.model_validate_json(ws.receive_text())
         assert hello.running is None and [t.index for t in hello.tasks] == [0, 1, 2]
         ws.send_text(start())
