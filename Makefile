@@ -18,7 +18,7 @@ run: setup
 # The web UI's unit tests (vitest) run too where Node is installed (setup ran `npm ci` then).
 # pytest in two passes: the tests marked `serial` (timed, or a browser + server + simulator) alone, then the
 # rest on two pytest-xdist workers with one torch/BLAS thread each (tests/conftest.py), file by file so a
-# module's fixtures are built once. Both passes run even if the first fails; the second's summary closes the output.
+# module's fixtures are built once, the files marked `heavy` (minutes of simulator episodes) first. Both passes run even if the first fails; the second's summary closes the output.
 test: setup
 	@if command -v npm >/dev/null; then cd web && npm test --silent; else echo "make test: npm missing, web unit tests skipped"; fi
 	@status=0; \

@@ -30,3 +30,20 @@ def shared_dir() -> Path:
     if not SHARED.is_dir():
         pytest.skip(f"shared folder not found at {SHARED}; set VLAPROBE_SHARED")
     return SHARED
+
+
+def _rank(item: pytest.Item) -> int:
+    """0 for the slowest files (marked ``heavy``), 1 for the other simulator files, 2 for the rest."""
+    if item.get_closest_marker("heavy"):
+        return 0
+    return 1 if item.get_closest_marker("libero") else 2
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Start the slowest test files first: the two-worker pass hands out files in collection order, so a
+    minutes-long file collected last would run alone at the end while the other worker idles."""
+    rank: dict[str, int] = {}
+    for item in items:
+        path = item.nodeid.split("::")[0]
+        rank[path] = min(rank.get(path, 2), _rank(item))
+    items.sort(key=lambda item: rank[item.nodeid.split("::")[0]])  # stable: the order within a rank stays

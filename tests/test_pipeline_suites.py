@@ -14,7 +14,7 @@ from vlaprobe.cognition.monitor import read_monitor
 from vlaprobe.probes.results import read_evaluation
 from vlaprobe.results import read_results
 
-pytestmark = [pytest.mark.libero, pytest.mark.serial, pytest.mark.timeout(900)]
+pytestmark = [pytest.mark.libero, pytest.mark.heavy, pytest.mark.timeout(900)]
 
 
 def test_run_on_libero_goal_follows_the_goals_it_can(

@@ -25,7 +25,7 @@ from vlaprobe.envs.libero import suite_tasks
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.symbols.vocabulary import build_vocabulary
 
-pytestmark = [pytest.mark.libero, pytest.mark.timeout(900), pytest.mark.serial]
+pytestmark = [pytest.mark.libero, pytest.mark.timeout(900), pytest.mark.heavy]
 SUITE, TASK = "libero_goal", 7  # turn on the stove
 
 

@@ -16,7 +16,7 @@ from vlaprobe.configs.env import EnvConfig, SuiteName
 from vlaprobe.configs.monitor import DEFAULT_DEBOUNCE
 from vlaprobe.errors import VlaprobeError
 
-pytestmark = [pytest.mark.libero, pytest.mark.serial, pytest.mark.timeout(900)]
+pytestmark = [pytest.mark.libero, pytest.mark.heavy, pytest.mark.timeout(900)]
 ONE_TASK: dict[SuiteName, int] = {
     "libero_spatial": 0,  # On(bowl, plate)
     "libero_object": 0,  # In(soup, basket)

@@ -145,7 +145,7 @@ def test_the_policy_check_times_a_step_with_and_without_capture() -> None:
     )
 
 
-@pytest.mark.serial
+@pytest.mark.heavy
 @pytest.mark.libero
 def test_the_real_doctor_on_this_machine(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     """Every check for real (one renderer backend, to stay short): the schema, and what this machine must pass."""

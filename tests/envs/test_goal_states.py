@@ -15,7 +15,7 @@ from tests.envs.test_libero_suites import sweep_cases
 from vlaprobe.configs.env import SUITES, EnvConfig, SuiteName
 from vlaprobe.envs.libero import LiberoTaskEnv
 
-pytestmark = [pytest.mark.libero, pytest.mark.serial]
+pytestmark = [pytest.mark.libero, pytest.mark.heavy]
 
 ONE_TASK: dict[SuiteName, int] = {
     "libero_spatial": 0,  # On(bowl, plate)

@@ -17,7 +17,7 @@ from vlaprobe.envs.libero import LiberoTaskEnv, suite_tasks
 from vlaprobe.live.app import create_app
 from vlaprobe.live.serve import build_engine, limits_of, load_probes
 
-pytestmark = [pytest.mark.libero, pytest.mark.timeout(600), pytest.mark.serial]
+pytestmark = [pytest.mark.libero, pytest.mark.timeout(600), pytest.mark.heavy]
 SUITE = "libero_goal"
 TASK = 7  # turn on the stove: TurnOn(flat_stove_1), no pick-and-place goal
 STEPS = 6

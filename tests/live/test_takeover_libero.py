@@ -20,7 +20,7 @@ from vlaprobe.configs.takeover import TakeoverConfig
 from vlaprobe.live.app import create_app
 from vlaprobe.live.serve import build_engine, limits_of, load_probes
 
-pytestmark = [pytest.mark.libero, pytest.mark.timeout(600), pytest.mark.serial]
+pytestmark = [pytest.mark.libero, pytest.mark.timeout(600), pytest.mark.heavy]
 STEPS, TAKEOVER_STEPS = 16, 4
 probes = test_live_libero.probes
 """The fixture: random probes over task 0's atoms."""
