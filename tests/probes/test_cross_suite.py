@@ -121,6 +121,8 @@ def test_shared_atoms_transfer_and_flipped_ones_fall_below_chance(spatial: Path,
     assert obj.best_layer in (1, 2) and obj.best_layer in obj.tied and 0 not in obj.tied
     best = obj.balanced_accuracy[obj.layers.index(obj.best_layer)]
     assert best.value is not None and best.low is not None and best.value > 0.9 and best.low > 0.8
+    assert obj.source_layer == read_evaluation(spatial).heads["object"].best.layer
+    assert obj.at_source_layer == obj.balanced_accuracy[obj.layers.index(obj.source_layer)]
     layer0 = obj.balanced_accuracy[0].value
     assert layer0 is not None and abs(layer0 - 0.5) < 0.15  # noise only
     flipped = [e.value for e in act.balanced_accuracy[1:]]

@@ -7,7 +7,9 @@ episode was seen in training, so every one is scored. An atom over an object or 
 undefined there (read from the task's BDDL scene) and left out of that task's rows, never scored as false.
 
 Per head: the balanced accuracy per layer averaged over the shared atoms, with a 95% interval over resamples of
-the target episodes; the best layer and the layers tied with it (:mod:`vlaprobe.probes.ties`); the atom
+the target episodes; at the probes' own best layer (chosen on the source suite: the unbiased reading); the best
+layer on the target and the layers tied with it (:mod:`vlaprobe.probes.ties`; chosen on the scored data, so
+optimistic); the atom
 families at the best layer; and what the probes must beat there: the majority (0.5 wherever defined) and the
 time-only baseline (normalised-time decile -> majority) fit on the source store's rows. The task baselines
 cannot transfer: the target's tasks are not the source's. Next to it, the source evaluation's figure over the
@@ -22,6 +24,7 @@ import json
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -40,6 +43,9 @@ from vlaprobe.probes.cross_suite_result import (
 from vlaprobe.probes.probeset import ProbeSet
 from vlaprobe.probes.results import DECIMALS
 from vlaprobe.symbols import HEADS
+
+if TYPE_CHECKING:
+    import torch
 
 
 @dataclass(frozen=True)
@@ -195,10 +201,11 @@ def source_figure(probes: Path, head: str, atoms: list[str], layer: int) -> tupl
 
 
 def score_head(
-    probes: ProbeSet, hidden: object, layers: list[int], head: str, atoms: list[str], target: Labels,
+    probes: ProbeSet, hidden: torch.Tensor, layers: list[int], head: str, atoms: list[str], target: Labels,
     source: Labels, weights: np.ndarray, probes_path: Path,
 ) -> HeadTransfer | None:  # fmt: skip
-    """One head on the target store; None when no shared atom has both classes on its rows."""
+    """One head on the target store (``hidden``: its (layers, rows, hidden) states at ``layers``); None when no
+    shared atom has both classes on its rows."""
     import torch
 
     from vlaprobe.probes.apply import apply_probes_to_rows
@@ -206,7 +213,6 @@ def score_head(
     from vlaprobe.probes.metrics import confusion_by_group, count_metrics, layer_means, summarize
     from vlaprobe.probes.ties import layer_resamples, tie_set
 
-    assert isinstance(hidden, torch.Tensor)
     at = [probes.layers.index(layer) for layer in layers]
     cols = [probes.atoms(head).index(a) for a in atoms]
     t = {k: v for k, v in probes.tensors.items() if k.startswith(f"{head}.")}
@@ -237,6 +243,7 @@ def score_head(
         base[name] = (float(value[0]), res[:, 0])
     fam = summary["predicate"]
     source_value, how = source_figure(probes_path, head, atoms, layers[best])
+    own = probes.best_layer(head)
     return HeadTransfer(
         atoms=atoms,
         scored=scored,
@@ -245,6 +252,12 @@ def score_head(
         balanced_accuracy=[_est(curve["value"][i], curve_res[:, i]) for i in range(len(layers))],
         best_layer=layers[best],
         tied=[layers[i] for i in tie_set(curve["value"], curve_res, best)],
+        source_layer=own,
+        at_source_layer=(
+            _est(curve["value"][layers.index(own)], curve_res[:, layers.index(own)])
+            if own in layers
+            else Estimate(None, None, None)
+        ),
         majority=_est(*base["majority"]),
         time=_est(*base["time"]),
         best_minus_time=_est(curve["value"][best] - base["time"][0], curve_res[:, best] - base["time"][1]),

@@ -45,8 +45,14 @@ class HeadTransfer:
     balanced_accuracy: list[Estimate]
     """Per layer, the mean over the scored atoms."""
     best_layer: int
+    """The best layer on the target's own episodes: chosen on the data it is scored on, so its figure is
+    optimistic; ``at_source_layer`` is the unbiased reading."""
     tied: list[int]
     """Layers tied with the best (the best included): :data:`vlaprobe.probes.ties.TIE_RULE`."""
+    source_layer: int
+    """The probes' own best layer, chosen on the source suite's held-out episodes (``probes.json``)."""
+    at_source_layer: Estimate
+    """The balanced accuracy on the target at ``source_layer`` (a layer chosen without the target's data)."""
     majority: Estimate
     """The per-atom majority of the source store (a constant prediction: 0.5 wherever defined)."""
     time: Estimate
@@ -127,9 +133,11 @@ def table_lines(r: CrossSuite) -> list[str]:
         best = h.balanced_accuracy[i]
         source = "–" if h.source is None else f"{h.source:.3f} ({h.source_split})"
         lines.append(
-            f"  {head:>6}: {len(h.atoms)} shared atoms, {h.scored} scored; {describe(h.best_layer, h.tied)}: "
+            f"  {head:>6}: {len(h.atoms)} shared atoms, {h.scored} scored; at the probes' own best layer "
+            f"{h.source_layer}: {_fmt(h.at_source_layer)}; on {r.target_suite}, {describe(h.best_layer, h.tied)}: "
             f"{_fmt(best)}; majority {_fmt(h.majority)}; time (fit on {r.source_suite}) {_fmt(h.time)}; "
-            f"best minus time {_fmt(h.best_minus_time, sign=True)}; on {r.source_suite} at that layer {source}"
+            f"best minus time {_fmt(h.best_minus_time, sign=True)}; on {r.source_suite} at layer {h.best_layer} "
+            f"{source}"
         )
         for f in h.families:
             lines.append(f"          {f.family:<22} {f.atoms:>3} atoms  {_fmt(f.balanced_accuracy)}")
