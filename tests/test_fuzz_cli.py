@@ -164,6 +164,7 @@ def _baseline(name: str, f: dict[str, Path]) -> list[str]:
         "hypotheses": ["--probes", p],
         "compare-splits": ["--within", p, "--across", str(f["loto"])],
         "compare-stores": [s, str(f["store2"]), "--bootstrap", "10"],
+        "cross-suite": ["--probes", p, "--store", s, "--bootstrap", "10"],
         "report": ["--probes", p, "--out", o],
         "cognition": ["--store", s, "--probes", p, "--out", o],
         "failures": ["--store", s, "--out", o, "--folds", "2", "--bootstrap", "10"],

@@ -10,7 +10,13 @@ import pytest
 
 from vlaprobe.configs.env import SUITES
 from vlaprobe.envs.spatial_scene import SPATIAL_SCENE
-from vlaprobe.envs.suite_vocabulary import defined_mask, suite_vocabulary, union_scene, vocabulary_of
+from vlaprobe.envs.suite_vocabulary import (
+    defined_mask,
+    suite_vocabulary,
+    tasks_defined,
+    union_scene,
+    vocabulary_of,
+)
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.symbols import Articulation, build_vocabulary
 
@@ -75,3 +81,12 @@ def test_each_task_defines_exactly_its_own_atoms(suite: str) -> None:
             assert set(atoms[row]) == set(build_vocabulary(scene).atoms(head))
     if suite == "libero_spatial":
         assert vocab.vocabulary == build_vocabulary(SPATIAL_SCENE)
+
+
+@needs_assets
+def test_tasks_defined_reads_each_tasks_scene() -> None:
+    """cream_cheese_1 is on the table of LIBERO-object's task 1, not of task 5; the basket is in both."""
+    atoms = ["grasped(cream_cheese_1)", "inside(cream_cheese_1,basket_1)", "grasped(basket_1)"]
+    mask = tasks_defined("libero_object", atoms, [1, 5, 1])
+    np.testing.assert_array_equal(mask, [[True, True, True], [False, False, True], [True, True, True]])
+    assert tasks_defined("libero_goal", atoms, []).shape == (0, 3)

@@ -122,3 +122,19 @@ def test_time_ignores_the_task_where_task_time_does_not() -> None:
     pred = predict_baselines(labels, episode, tasks, train, test)
     np.testing.assert_array_equal(pred["time"][:, 0], np.ones(2 * length, bool))
     np.testing.assert_array_equal(pred["task_time"][:, 0], labels[test, 0])
+
+
+def test_majorities_count_only_the_rows_that_define_the_atom() -> None:
+    """Atom 0 is undefined (stored false) in episode 0, so its majority is that of episode 1 alone (true);
+    atom 1, defined nowhere in training, falls back to false."""
+    labels = np.array([[0, 0], [0, 0], [0, 0], [1, 0], [1, 0], [0, 0], [0, 0], [0, 0]], bool)
+    episode = np.array([0, 0, 0, 1, 1, 1, 2, 2])
+    defined = np.ones_like(labels)
+    defined[:3, 0] = False
+    defined[:6, 1] = False
+    train, test = np.arange(6), np.arange(6, 8)
+    plain = predict_baselines(labels, episode, np.zeros(3, int), train, test)
+    pred = predict_baselines(labels, episode, np.zeros(3, int), train, test, defined=defined)
+    np.testing.assert_array_equal(plain["majority"], [[False, False]] * 2)  # 2 of 6 true
+    np.testing.assert_array_equal(pred["majority"], [[True, False]] * 2)  # 2 of 3 defined rows true
+    np.testing.assert_array_equal(pred["time"][:, 1], [False, False])

@@ -82,6 +82,23 @@ def test_confusion_counts_and_metrics() -> None:
     assert m["f1"][0, 0] == pytest.approx(2 * 1 / (2 * 1 + 1 + 1))
 
 
+def test_undefined_entries_count_in_no_cell() -> None:
+    """An atom undefined in a row's task (``defined`` False) is left out of every count of that row: the counts
+    equal those of the defined rows alone, whatever the prediction and label there."""
+    truth = np.array([[1, 1], [0, 1], [1, 0], [0, 0]], bool)
+    pred = torch.tensor([[[1, 0], [1, 1], [0, 0], [0, 1]]], dtype=torch.bool)
+    groups = np.array([0, 0, 1, 1])
+    defined = np.array([[1, 1], [0, 1], [1, 0], [1, 1]], bool)
+    counts = confusion_by_group(pred, truth, groups, 2, defined)
+    for atom in range(2):
+        keep = defined[:, atom]
+        alone = confusion_by_group(pred[:, keep][:, :, [atom]], truth[keep][:, [atom]], groups[keep], 2)
+        np.testing.assert_array_equal(counts[:, :, [atom]], alone)
+    assert counts.sum((0, 1, 3)).tolist() == [3, 3]  # three defined rows per atom
+    np.testing.assert_array_equal(confusion_by_group(pred, truth, groups, 2, np.ones((4, 2), bool)),
+                                  confusion_by_group(pred, truth, groups, 2))  # fmt: skip
+
+
 def test_a_single_class_leaves_balanced_accuracy_and_f1_undefined() -> None:
     assert COUNTS == ("tp", "fp", "fn", "tn")
     m = metrics_from_counts(np.array([[0, 0, 0, 5], [0, 2, 0, 3], [4, 0, 1, 0], [2, 1, 2, 3]], float))

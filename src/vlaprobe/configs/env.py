@@ -23,7 +23,8 @@ def same_suite(first: str, first_suite: str, second: str, second_suite: str) -> 
 
         raise VlaprobeError(
             f"{first} is from {first_suite}, {second} from {second_suite}; combine artefacts of one suite "
-            f"(collect, train and serve with the same --suite)"
+            f"(collect, train and serve with the same --suite; probes of one suite on another's store: "
+            f"vlaprobe cross-suite)"
         )
 
 

@@ -122,3 +122,14 @@ def suite_vocabulary(suite: SuiteName, assets: str | Path | None = None) -> Suit
     folder = assets_folder(assets, suite)
     scenes = [scene_from_problem(task_bddl(suite, i), folder) for i, _ in suite_tasks(suite)]
     return vocabulary_of(suite, scenes)
+
+
+def tasks_defined(
+    suite: SuiteName, atoms: Sequence[str], tasks: Sequence[int], assets: str | Path | None = None
+) -> np.ndarray:
+    """(len(tasks), atoms) bool: which of ``atoms`` each task of ``suite`` defines, from the tasks' BDDL scenes
+    (an atom over an object or region absent from the task is undefined there). Each task is read once."""
+    from vlaprobe.envs.bddl_scene import task_scene
+
+    masks = {t: defined_mask(atoms, task_scene(suite, t, assets)) for t in dict.fromkeys(tasks)}
+    return np.stack([masks[t] for t in tasks]) if len(tasks) else np.zeros((0, len(atoms)), bool)

@@ -54,15 +54,31 @@ def task_time_cell(episode: np.ndarray, episode_tasks: np.ndarray, bins: int = T
     return task * bins + time_bin(episode, bins)
 
 
+def _true_share(labels: np.ndarray, defined: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Per atom: the share of true rows among the rows where it is defined, and whether any row defines it."""
+    if defined is None:
+        return labels.mean(0), np.full(labels.shape[1], len(labels) > 0)
+    n = defined.sum(0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, (labels & defined).sum(0) / n, 0.0), n > 0
+
+
 def _cell_majority(
-    labels: np.ndarray, cells: np.ndarray, test_cells: np.ndarray, fallback: np.ndarray
+    labels: np.ndarray,
+    cells: np.ndarray,
+    test_cells: np.ndarray,
+    fallback: np.ndarray,
+    defined: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Per test row: the training majority of its cell, or ``fallback``'s row where the cell is unseen."""
+    """Per test row: the training majority of its cell, or ``fallback``'s row where the cell is unseen (or, with
+    ``defined``, where no row of the cell defines the atom)."""
     out = fallback.copy()
     for cell in np.unique(test_cells):
         members = cells == cell
         if members.any():
-            out[test_cells == cell] = labels[members].mean(0) >= 0.5
+            share, seen = _true_share(labels[members], None if defined is None else defined[members])
+            rows = np.flatnonzero(test_cells == cell)
+            out[np.ix_(rows, np.flatnonzero(seen))] = share[seen] >= 0.5
     return out
 
 
@@ -73,19 +89,24 @@ def predict_baselines(
     train_rows: np.ndarray,
     test_rows: np.ndarray,
     bins: int = TIME_BINS,
+    defined: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """Predictions of every baseline for ``test_rows``, fit on ``train_rows``.
 
     ``labels`` bool (rows, atoms); ``episode`` int (rows,) episode position of each row; ``episode_tasks``
-    int (episodes,) the task of each episode. Returns baseline name -> bool (test rows, atoms).
+    int (episodes,) the task of each episode. ``defined`` bool (rows, atoms), when given: a majority counts
+    only the training rows that define the atom (an atom undefined in a row's task is no evidence either way).
+    Returns baseline name -> bool (test rows, atoms).
     """
     labels = np.asarray(labels, bool)
     task = np.asarray(episode_tasks)[np.asarray(episode)]
     train_y = labels[train_rows]
-    majority = np.broadcast_to(train_y.mean(0) >= 0.5, (len(test_rows), labels.shape[1])).copy()
+    train_d = None if defined is None else np.asarray(defined, bool)[train_rows]
+    share, _ = _true_share(train_y, train_d)
+    majority = np.broadcast_to(share >= 0.5, (len(test_rows), labels.shape[1])).copy()
     when = time_bin(episode, bins)
-    by_time = _cell_majority(train_y, when[train_rows], when[test_rows], majority)
-    by_task = _cell_majority(train_y, task[train_rows], task[test_rows], majority)
+    by_time = _cell_majority(train_y, when[train_rows], when[test_rows], majority, train_d)
+    by_task = _cell_majority(train_y, task[train_rows], task[test_rows], majority, train_d)
     cell = task_time_cell(episode, episode_tasks, bins)
-    by_task_time = _cell_majority(train_y, cell[train_rows], cell[test_rows], by_task)
+    by_task_time = _cell_majority(train_y, cell[train_rows], cell[test_rows], by_task, train_d)
     return {"majority": majority, "time": by_time, "task": by_task, "task_time": by_task_time}

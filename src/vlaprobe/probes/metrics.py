@@ -40,16 +40,25 @@ COUNTS = ("tp", "fp", "fn", "tn")
 
 
 def confusion_by_group(
-    pred: torch.Tensor | np.ndarray, truth: np.ndarray, groups: np.ndarray, num_groups: int
+    pred: torch.Tensor | np.ndarray,
+    truth: np.ndarray,
+    groups: np.ndarray,
+    num_groups: int,
+    defined: np.ndarray | None = None,
 ) -> np.ndarray:
     """Confusion counts (groups, layers, atoms, 4 = tp, fp, fn, tn) of bool ``pred`` (layers, rows, atoms).
 
     ``truth`` is bool (rows, atoms); ``groups`` int (rows,) in [0, num_groups), e.g. the test episode.
+    ``defined`` (rows, atoms) bool, when given, leaves out the entries where it is False (an atom undefined in
+    the row's task: counted in no cell, never as false).
     """
     pred = torch.as_tensor(np.asarray(pred) if isinstance(pred, np.ndarray) else pred).bool()
     truth_t = torch.as_tensor(np.asarray(truth, bool))
     index = torch.as_tensor(np.asarray(groups), dtype=torch.long)
     atoms = pred.shape[2]
+    mask = None if defined is None else torch.as_tensor(np.asarray(defined, bool))
+    if mask is not None:
+        pred, truth_t = pred & mask[None], truth_t & mask
 
     def group_sum(x: torch.Tensor) -> torch.Tensor:  # (layers, rows, atoms) -> (groups, layers, atoms)
         out = torch.zeros((num_groups, x.shape[0], atoms), dtype=torch.float64)
@@ -58,7 +67,11 @@ def confusion_by_group(
     tp = group_sum(pred & truth_t)
     predicted = group_sum(pred)
     positives = group_sum(truth_t[None])
-    sizes = torch.bincount(index, minlength=num_groups).double()[:, None, None]
+    sizes = (
+        torch.bincount(index, minlength=num_groups).double()[:, None, None]
+        if mask is None
+        else group_sum(mask[None])
+    )
     fp, fn = predicted - tp, positives - tp
     tn = sizes - tp - fp - fn
     return torch.stack([tp, fp, fn, tn.expand_as(tp)], dim=-1).numpy()
