@@ -53,10 +53,26 @@ _DACITE = dacite.Config(
 )
 
 
+def merged_over(default: DataclassInstance, data: JsonObject) -> JsonObject:
+    """``data`` merged field by field over ``default``'s values: a section given as a mapping (``collect:``)
+    replaces only the fields it names, at any depth; every other value replaces the default's."""
+    out = config_to_dict(default)
+    for key, value in data.items():
+        current = getattr(default, key, None)
+        if isinstance(value, dict) and dataclasses.is_dataclass(current) and not isinstance(current, type):
+            out[key] = merged_over(current, value)
+        else:
+            out[key] = value
+    return out
+
+
 def config_from_dict(cls: type[C], data: JsonObject, source: str = "config") -> C:
-    """Build a config dataclass from a dict (as written by :func:`config_to_dict`); unknown keys are refused."""
+    """Build a config dataclass from a dict (as written by :func:`config_to_dict`), merged field by field over
+    ``cls()``'s own defaults (:func:`merged_over`: a run's ``collect:`` keeps the run's collection defaults);
+    unknown keys are refused."""
     try:
-        return dacite.from_dict(cls, data, config=_DACITE)
+        base = cls()  # type: ignore[call-arg]
+        return dacite.from_dict(cls, merged_over(base, data), config=_DACITE)  # type: ignore[arg-type]
     except dacite.UnexpectedDataError as exc:
         raise VlaprobeError(
             f"{source}: unknown field(s) {sorted(exc.keys)} for {cls.__name__}; remove them"
