@@ -71,7 +71,7 @@ def config_from_dict(cls: type[C], data: JsonObject, source: str = "config") -> 
     ``cls()``'s own defaults (:func:`merged_over`: a run's ``collect:`` keeps the run's collection defaults);
     unknown keys are refused."""
     try:
-        base = cls()  # type: ignore[call-arg]
+        base = cls()
         return dacite.from_dict(cls, merged_over(base, data), config=_DACITE)  # type: ignore[arg-type]
     except dacite.UnexpectedDataError as exc:
         raise VlaprobeError(
