@@ -24,7 +24,9 @@ def test_empty_control_model_skips_the_control(tmp_path: Path) -> None:
     assert cfg.train.observer_store is None
 
 
-def test_run_writes_the_headline_figures(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_run_writes_the_headline_figures(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     """`vlaprobe run` on fake episodes ends with ``results.json``, built from the files the run wrote."""
     from tests.collection.fakes import make_fake_worker
 
@@ -50,6 +52,27 @@ def test_run_writes_the_headline_figures(tmp_path: Path, monkeypatch: pytest.Mon
     results = read_results(tmp_path / "r" / RESULTS_FILE)
     assert results == results_from_run(tmp_path / "r")
     assert results.figure("object.best.value") is not None and "cognition.goal.recall" in results.figures
+    _report_refuses_the_runs_own(tmp_path / "r", capsys)
+
+
+def _report_refuses_the_runs_own(run_folder: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`vlaprobe report` on a run's probes: refused over the run's own report, written with another --out."""
+    from vlaprobe.cli import main
+
+    page = run_folder / "report" / "index.html"
+    before = page.read_bytes()
+    probes = str(run_folder / "probes")
+    for argv in (
+        ["report", "--probes", probes],
+        ["report", "--probes", probes, "--out", str(run_folder / "report")],
+    ):
+        capsys.readouterr()
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "the report `vlaprobe run` wrote" in err and "pass --out" in err, err
+    assert page.read_bytes() == before
+    assert main(["report", "--probes", probes, "--out", str(run_folder / "report-2")]) == 0
+    assert (run_folder / "report-2" / "index.html").is_file()
 
 
 def test_a_finished_run_folder_can_be_run_again(tmp_path: Path) -> None:

@@ -139,8 +139,24 @@ def report(cfg: ReportConfig) -> Path:
     return write_report(cfg, sections=[s for s in found if s is not None])
 
 
+def refuse_run_report(cfg: ReportConfig) -> None:
+    """Refuse to write over the report of a ``vlaprobe run`` folder (one with ``results.json``): the run's
+    figures and its report belong together; another report goes elsewhere (``--out``)."""
+    from vlaprobe.results import RESULTS_FILE
+
+    run_folder = Path(cfg.probes).parent
+    out = Path(cfg.out) if cfg.out is not None else run_folder / "report"
+    own = run_folder / "report"
+    if (run_folder / RESULTS_FILE).is_file() and out.resolve() == own.resolve():
+        raise VlaprobeError(
+            f"{own} is the report `vlaprobe run` wrote for {run_folder}; pass --out to write this report "
+            f"elsewhere (e.g. --out {run_folder / 'report-2'})"
+        )
+
+
 def report_main(cfg: ReportConfig) -> int:
-    """CLI entry of ``vlaprobe report``: write the report and print where it is."""
+    """CLI entry of ``vlaprobe report``: write the report and print where it is (never over a run's own)."""
+    refuse_run_report(cfg)
     print(f"report written to {report(cfg)}")
     return 0
 
