@@ -125,3 +125,27 @@ def test_the_readme_python_example_runs(
     exec(compile(code.replace("runs/default", run.name), "README.md", "exec"), {})
     printed = capsys.readouterr().out
     assert printed.strip(), "the example prints the atoms it read"
+
+
+@pytest.mark.parametrize("split", ["episode", "leave-one-task-out"])
+def test_run_test_episodes_counts_every_scored_episode(tmp_path: Path, split: str) -> None:
+    """``run.test_episodes`` is the number of episodes the figures pool (and resample), under every split:
+    under leave-one-task-out every episode is held out once, not one fold's share."""
+    from tests.collection.test_store import write
+
+    from vlaprobe.configs.train import ProbeConfig, SplitConfig, TrainConfig
+    from vlaprobe.probes.train import train_probes
+
+    store = tmp_path / "activations"
+    write(store, [(t, e, 5 + e) for t in range(3) for e in range(2)])
+    probes = tmp_path / "probes"
+    cfg = TrainConfig(
+        store=store, out=probes, split=SplitConfig(by=split), bootstrap=5, auprc_bootstrap=0,
+        shuffled_control=False, probe=ProbeConfig(c_grid=(0.1,), max_iter=50),
+    )  # fmt: skip
+    train_probes(cfg)
+    ev = read_evaluation(probes)
+    scored = len(set(ev.split.test_episodes))
+    assert RUN_FIGURES["test_episodes"](ev) == scored
+    if split == "leave-one-task-out":
+        assert scored == 6 and ev.split.test.episodes == 2  # per fold: what results.json used to say

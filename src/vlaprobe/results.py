@@ -162,7 +162,9 @@ RUN_FIGURES: dict[str, Callable[[Evaluation], Figure]] = {
     "episodes": lambda e: e.dataset.episodes,
     "steps": lambda e: e.dataset.steps,
     "train_episodes": lambda e: e.split.train.episodes,
-    "test_episodes": lambda e: e.split.test.episodes,
+    # every episode whose held-out steps the figures pool (all of them under k-fold or leave-one-task-out),
+    # not one fold's share: the intervals resample these
+    "test_episodes": lambda e: len(e.split.test_episodes),
 }
 """The run as a whole (``run.<key>``)."""
 
