@@ -5,8 +5,10 @@ Runs ``vlaprobe collect`` in this process (one worker, the real LIBERO scene at 
 the embedded tiny OpenVLA observing, the scripted expert acting) into a temporary store, then reads the
 store back for its size. Labelling = world-state snapshots + detectors, timed inside the step loop; writing
 = staging, fsync and publishing, timed in the parent. Both are measured in the same run as the step time
-they are compared to, so the share does not depend on how busy the shared machine is. Prints the summary
-of ``collect`` and a final JSON line on stdout.
+they are compared to, so the share does not depend on how busy the shared machine is. The same collection is
+then made on LIBERO-goal and LIBERO-object (task 0 of each, the same settings): ``suites`` holds each suite's
+steps/s and ``ratio_to_spatial`` its rate over LIBERO-spatial's in this run (issue 36's target: within 20 %).
+Prints the summary of ``collect`` and a final JSON line on stdout.
 
     python bench/collect_throughput.py                        # 1 episode of task 0 (~1-2 min on 2 cores)
     python bench/collect_throughput.py --episodes-per-task 2 --tasks 0 5
@@ -22,6 +24,10 @@ import time
 from pathlib import Path
 
 from quick import QUICK, size
+from vlaprobe.configs.env import SuiteName
+
+SUITES: tuple[SuiteName, ...] = ("libero_goal", "libero_object")
+"""Collected after LIBERO-spatial, task 0 each, to compare their rates with spatial's in one run."""
 
 
 def _bytes(path: Path, pattern: str) -> tuple[int, int]:
@@ -55,17 +61,20 @@ def main() -> None:
     from vlaprobe.configs.policy import PolicyConfig
     from vlaprobe.rollout.runner import default_threads
 
-    with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp) / "store"
-        cfg = CollectConfig(
+    def config(out: Path, suite: SuiteName, tasks: tuple[int, ...]) -> CollectConfig:
+        return CollectConfig(
             out=out,
             policy=PolicyConfig(model=args.model, device="cpu"),
-            tasks=tuple(args.tasks),
+            tasks=tasks,
             episodes_per_task=args.episodes_per_task,
             progress=False,
-            env=EnvConfig(image_size=args.image_size, max_steps=size(300, 10)),
+            env=EnvConfig(suite=suite, image_size=args.image_size, max_steps=size(300, 10)),
             **({"keep_failed": True, "max_tries_per_task": 1} if QUICK else {}),
         )
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "store"
+        cfg = config(out, "libero_spatial", tuple(args.tasks))
         start = time.perf_counter()
         r = collect(cfg)
         wall = time.perf_counter() - start
@@ -73,6 +82,10 @@ def main() -> None:
         sizes = {name: _bytes(out, name) for name in ("hidden", "image")}
         total = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
         files = sum(1 for f in out.glob("episodes/*/**/*") if f.is_file())
+        rates = {"libero_spatial": r.steps / step_time}
+        for suite in SUITES:
+            other = collect(config(Path(tmp) / suite, suite, (0,)))
+            rates[suite] = other.steps / (other.episode_seconds + other.write_seconds)
     episodes = max(1, r.episodes_run)
     print(
         json.dumps(
@@ -93,6 +106,10 @@ def main() -> None:
                 "files_per_episode": round(files / episodes, 1),
                 "torch_threads": cfg.threads or default_threads(cfg.workers),
                 "cpu_count": os.cpu_count(),
+                "suites": {suite: round(rate, 3) for suite, rate in rates.items()},
+                "ratio_to_spatial": {
+                    suite: round(rate / rates["libero_spatial"], 3) for suite, rate in rates.items()
+                },
             }
         )
     )
