@@ -13,7 +13,7 @@ EXPERIMENTS = sorted((Path(__file__).parent.parent / "experiments").glob("*.yaml
 
 # file name -> (suite, first_init, max_steps)
 INTENDED = {
-    "diverse.yaml": ("libero_spatial", 40, 300),
+    "diverse.yaml": ("libero_spatial", 0, 300),
     "goal.yaml": ("libero_goal", 0, 450),
     "object.yaml": ("libero_object", 0, 300),
 }
