@@ -372,6 +372,21 @@ class ActivationStore:
         infos = self._resolve(episodes)
         return self._concat(infos, ATOM_ARRAYS[head], Ellipsis, (len(self.atom_names[head]),), bool)
 
+    def defined(self, head: str, episodes: Sequence[str] | None = None) -> np.ndarray:
+        """bool (steps, atoms) aligned with :meth:`labels`: False where the atom is undefined in that episode."""
+        from vlaprobe.collection.defined import read_defined
+
+        if head not in self.atom_names:
+            return self.labels(head, episodes)
+        rows = [
+            np.broadcast_to(
+                read_defined(self.episode(e.key).attrs, self.atom_names, head),
+                (e.length, len(self.atom_names[head])),
+            )
+            for e in self._resolve(episodes)
+        ]
+        return np.concatenate(rows) if rows else np.ones((0, len(self.atom_names[head])), dtype=bool)
+
     def step_index(self, episodes: Sequence[str] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Per row of :meth:`layer`: (position of its episode in ``episodes``, its step), both int32."""
         infos = self._resolve(episodes)
