@@ -47,6 +47,21 @@ def read_defined(attrs: Mapping[str, Json], atom_names: Mapping[str, Sequence[st
         )
     undefined = record.get("undefined") or {}
     assert isinstance(undefined, Mapping)
-    names = set(undefined.get(head) or [])  # type: ignore[arg-type]
+    names = set(undefined.get(head) or [])
     mask[[i for i, n in enumerate(atom_names[head]) if n in names]] = False
     return mask
+
+
+def defined_rows(
+    attrs: Sequence[Mapping[str, Json]],
+    lengths: Sequence[int],
+    atom_names: Mapping[str, Sequence[str]],
+    head: str,
+) -> np.ndarray:
+    """bool (sum(lengths), atoms): each episode's :func:`read_defined` repeated over its steps."""
+    width = len(atom_names[head])
+    rows = [
+        np.broadcast_to(read_defined(a, atom_names, head), (n, width))
+        for a, n in zip(attrs, lengths, strict=True)
+    ]
+    return np.concatenate(rows) if rows else np.ones((0, width), dtype=bool)

@@ -29,6 +29,7 @@ import numpy as np
 import zarr
 from numpy.typing import DTypeLike
 
+from vlaprobe.collection.defined import defined_rows
 from vlaprobe.collection.episode import EpisodeAttrs, EpisodeSteps, stored_records
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import Json, JsonObject
@@ -374,18 +375,10 @@ class ActivationStore:
 
     def defined(self, head: str, episodes: Sequence[str] | None = None) -> np.ndarray:
         """bool (steps, atoms) aligned with :meth:`labels`: False where the atom is undefined in that episode."""
-        from vlaprobe.collection.defined import read_defined
-
-        if head not in self.atom_names:
-            return self.labels(head, episodes)
-        rows = [
-            np.broadcast_to(
-                read_defined(self.episode(e.key).attrs, self.atom_names, head),
-                (e.length, len(self.atom_names[head])),
-            )
-            for e in self._resolve(episodes)
-        ]
-        return np.concatenate(rows) if rows else np.ones((0, len(self.atom_names[head])), dtype=bool)
+        self.labels(head, [])  # the head check
+        infos = self._resolve(episodes)
+        attrs = [dict(group_at(self._root, f"episodes/{e.key}").attrs) for e in infos]
+        return defined_rows(attrs, [e.length for e in infos], self.atom_names, head)
 
     def step_index(self, episodes: Sequence[str] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Per row of :meth:`layer`: (position of its episode in ``episodes``, its step), both int32."""
