@@ -45,3 +45,12 @@ def test_unknown_atom_and_version_are_refused(tmp_path: Path) -> None:
         w.write_episode(info, arrays, {ATTR: {"version": 99, "undefined": {}}})
     with pytest.raises(VlaprobeError, match="version 99"):
         ActivationStore.open(tmp_path / "s").defined("object")
+
+
+def test_records_defined_says_whether_the_store_has_the_attribute(tmp_path: Path) -> None:
+    write(tmp_path / "old", [(0, 0, 2)])
+    assert not ActivationStore.open(tmp_path / "old").records_defined()
+    with StoreWriter.open(tmp_path / "new", make_meta()) as w:
+        info, arrays = make_episode(0, 0, 2)
+        w.write_episode(info, arrays, defined_attrs(ATOMS, {}))
+    assert ActivationStore.open(tmp_path / "new").records_defined()

@@ -29,7 +29,7 @@ import numpy as np
 import zarr
 from numpy.typing import DTypeLike
 
-from vlaprobe.collection.defined import defined_rows
+from vlaprobe.collection.defined import ATTR, defined_rows
 from vlaprobe.collection.episode import EpisodeAttrs, EpisodeSteps, stored_records
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import Json, JsonObject
@@ -379,6 +379,10 @@ class ActivationStore:
         infos = self._resolve(episodes)
         attrs = [dict(group_at(self._root, f"episodes/{e.key}").attrs) for e in infos]
         return defined_rows(attrs, [e.length for e in infos], self.atom_names, head)
+
+    def records_defined(self, episodes: Sequence[str] | None = None) -> bool:
+        """Whether any of ``episodes`` carries the ``atoms_defined`` attribute (a union store)."""
+        return any(ATTR in group_at(self._root, f"episodes/{e.key}").attrs for e in self._resolve(episodes))
 
     def step_index(self, episodes: Sequence[str] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Per row of :meth:`layer`: (position of its episode in ``episodes``, its step), both int32."""
