@@ -29,6 +29,7 @@ import numpy as np
 import zarr
 from numpy.typing import DTypeLike
 
+from vlaprobe.collection.defined import ATTR, defined_rows
 from vlaprobe.collection.episode import EpisodeAttrs, EpisodeSteps, stored_records
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import Json, JsonObject
@@ -371,6 +372,17 @@ class ActivationStore:
             )
         infos = self._resolve(episodes)
         return self._concat(infos, ATOM_ARRAYS[head], Ellipsis, (len(self.atom_names[head]),), bool)
+
+    def defined(self, head: str, episodes: Sequence[str] | None = None) -> np.ndarray:
+        """bool (steps, atoms) aligned with :meth:`labels`: False where the atom is undefined in that episode."""
+        self.labels(head, [])  # the head check
+        infos = self._resolve(episodes)
+        attrs = [dict(group_at(self._root, f"episodes/{e.key}").attrs) for e in infos]
+        return defined_rows(attrs, [e.length for e in infos], self.atom_names, head)
+
+    def records_defined(self, episodes: Sequence[str] | None = None) -> bool:
+        """Whether any of ``episodes`` carries the ``atoms_defined`` attribute (a union store)."""
+        return any(ATTR in group_at(self._root, f"episodes/{e.key}").attrs for e in self._resolve(episodes))
 
     def step_index(self, episodes: Sequence[str] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Per row of :meth:`layer`: (position of its episode in ``episodes``, its step), both int32."""

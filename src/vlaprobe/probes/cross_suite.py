@@ -127,10 +127,16 @@ def read_labels(
     tasks = np.array([e.task for e in episodes], np.int64)
     episode = np.asarray(store.step_index(keys)[0], np.int64)
     truth, defined = {}, {}
+    recorded = store.records_defined(keys)  # a union store says itself; older stores: from the BDDL scenes
     for head, atoms in shared.items():
         names = store.atom_names[head]
-        truth[head] = np.asarray(store.labels(head, keys), bool)[:, [names.index(a) for a in atoms]]
-        defined[head] = tasks_defined(_suite(store.suite), atoms, tasks.tolist(), assets)[episode]
+        cols = [names.index(a) for a in atoms]
+        truth[head] = np.asarray(store.labels(head, keys), bool)[:, cols]
+        defined[head] = (
+            store.defined(head, keys)[:, cols]
+            if recorded
+            else tasks_defined(_suite(store.suite), atoms, tasks.tolist(), assets)[episode]
+        )
     return Labels(truth, defined, episode, tasks)
 
 

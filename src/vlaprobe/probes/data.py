@@ -7,7 +7,7 @@ linear structure (:func:`synthetic_data`, for tests and the benchmark).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +47,9 @@ class ProbeData:
     """Hidden states the model has (33 for OpenVLA), even if only some are loaded."""
     suite: str = "libero_spatial"
     """The LIBERO suite of the episodes."""
+    defined: dict[str, np.ndarray] = field(default_factory=dict)
+    """Head -> bool (steps, atoms): False where the atom is undefined in that step's episode (union stores);
+    a head not listed is all defined. Read it through :meth:`defined_mask`."""
 
     def __post_init__(self) -> None:
         n = self.hidden.shape[1]
@@ -61,6 +64,9 @@ class ProbeData:
                 raise ValueError(
                     f"labels[{head!r}] must be ({n}, {len(self.atom_names[head])}); got {y.shape}"
                 )
+        for head, m in self.defined.items():
+            if m.shape != self.labels[head].shape:
+                raise ValueError(f"defined[{head!r}] must have labels' shape {self.labels[head].shape}")
         if len(self.episode_tasks) != len(self.episode_keys):
             raise ValueError("episode_tasks and episode_keys must have the same length")
 
@@ -71,6 +77,10 @@ class ProbeData:
     @property
     def hidden_size(self) -> int:
         return int(self.hidden.shape[2])
+
+    def defined_mask(self, head: str) -> np.ndarray:
+        """bool (steps, atoms): which entries of ``labels[head]`` are defined (all, for single-vocabulary stores)."""
+        return self.defined.get(head, np.ones_like(self.labels[head], dtype=bool))
 
     @property
     def heads(self) -> list[str]:
@@ -135,6 +145,7 @@ def load_store(
         pooling=store.pooling,
         num_hidden_states=store.num_hidden_states,
         suite=store.suite,
+        defined={h: store.defined(h, keys) for h in heads},
     )
 
 
