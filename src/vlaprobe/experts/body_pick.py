@@ -4,7 +4,7 @@ The rim grasp's phase machine (:class:`~vlaprobe.experts.rim_pick.RimPickPlace`:
 lift, carry, lower, release, retreat, and starting over when the object slips or moves) with another grasp:
 the grip point is the centre of the object's box, ``BODY_DEPTH`` below its top (half its height for flat
 objects), and the fingers close across the box's narrower horizontal side. A descent stopped early (a
-neighbour, the floor) grasps the other side next.
+neighbour, the floor) grasps the other side next, unless that side is wider than ``BODY_MAX_SPAN`` (7 cm).
 """
 
 from __future__ import annotations
