@@ -34,18 +34,19 @@ class Episode:
     success_step: int | None
 
 
-def expert_rows(env: Any, expert: Any, post: int, max_steps: int) -> tuple[list, int | None]:
+def expert_rows(env: Any, expert: Any, post: int, max_steps: int) -> tuple[list, int | None, bool]:
     """The labeler's (object, action) rows of an expert episode from init 0, going on ``post`` steps after LIBERO's
-    success (at most ``max_steps``), and the first row of success (None: none)."""
+    success (at most ``max_steps``), the first row of success (None: none), and LIBERO's goal check at the end."""
     env.reset(0)
     expert.reset()
-    rows, success_step = [env.labeler(env.world_state())], None
+    rows, success_step, success = [env.labeler(env.world_state())], None, False
     while len(rows) <= max_steps and (success_step is None or len(rows) <= success_step + post):
         obs = env.step(expert.act())
         rows.append(env.labeler(env.world_state()))
-        if obs.success and success_step is None:
+        success = obs.success
+        if success and success_step is None:
             success_step = len(rows) - 1
-    return rows, success_step
+    return rows, success_step, success
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +58,7 @@ def episodes() -> list[Episode]:
     out = []
     for task in range(10):
         with LiberoTaskEnv(task, EnvConfig(render=False)) as env:
-            rows, success_step = expert_rows(env, ScriptedExpert(env, seed=0), POST, MAX_STEPS)
+            rows, success_step, _ = expert_rows(env, ScriptedExpert(env, seed=0), POST, MAX_STEPS)
             vocab = env.labeler.vocabulary
             out.append(
                 Episode(

@@ -7,7 +7,7 @@ import shutil
 import numpy as np
 import pytest
 from tests.cognition.scenes import APPROACH, GOAL, VOCAB, arrays
-from tests.cognition.test_rules import CASES
+from tests.cognition.test_rules import CASES, ON_OWN_CABINET
 
 from vlaprobe.cognition import Cognition, CognitionConfig
 from vlaprobe.cognition.prolog import prolog_violations
@@ -35,7 +35,7 @@ def both(
 
 @needs_swipl
 def test_prolog_equals_clingo_on_every_rule_case() -> None:
-    rows = [arrays(s) for steps in CASES.values() for s in [APPROACH, *steps]]
+    rows = [arrays(s) for steps in CASES.values() for s in [APPROACH, *steps]] + [arrays(ON_OWN_CABINET)]
     asp, pl = both(VOCAB.object_atoms, VOCAB.action_atoms, GOAL, rows)
     assert sum(map(len, asp)) >= len(CASES)
     assert asp == pl

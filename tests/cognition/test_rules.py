@@ -67,6 +67,20 @@ def test_each_rule_fires_alone_on_a_state_built_to_violate_it(rule: str) -> None
         assert v.atoms and all(a in VOCAB.object_atoms + VOCAB.action_atoms for a in v.atoms)
 
 
+CABINET = TOP.removesuffix("_top_region")
+ON_OWN_CABINET = APPROACH | {f"on({A},{CABINET})", f"inside({A},{TOP})"}
+"""Inside a drawer and on the drawer's own cabinet (LIBERO-90 task 3): consistent."""
+
+
+def test_on_the_drawers_own_cabinet_is_not_on_and_inside() -> None:
+    engine = RuleEngine(VOCAB.object_atoms + VOCAB.action_atoms, GOAL)
+    assert f"part_of({TOP},{CABINET})." in engine.type_facts
+    (step,) = run([ON_OWN_CABINET])
+    assert "on_and_inside" not in {v.rule for v in step.violations}
+    (step,) = run([ON_OWN_CABINET | {f"on({A},{B})"}])  # on another object as well: still flagged
+    assert "on_and_inside" in {v.rule for v in step.violations}
+
+
 def test_reported_atoms_name_the_culprits() -> None:
     (step,) = run(CASES["on_and_inside"])
     assert step.violations[0].atoms == (f"on({A},{B})", f"inside({A},{TOP})")

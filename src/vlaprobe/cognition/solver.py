@@ -36,7 +36,7 @@ ARITY = {
 """Arity of each belief predicate."""
 TEMPORAL = ("prev", "ever", "recent")
 """Past-time operators over one belief: held at the previous step, at some step so far, in the last W steps."""
-TYPES = {"goal": 2, "object": 1, "pickupable": 1, "container": 1}
+TYPES = {"goal": 2, "object": 1, "pickupable": 1, "container": 1, "part_of": 2}
 RESULTS = {"violation": 2, "involves": 3, "message": 2}
 _LOCATION = re.compile(
     r"^(?P<file>.*?):(?P<line>\d+):\d+(?:-\d+(?::\d+)?)?: (?P<level>\w+): (?P<text>.*)$", re.S
@@ -78,6 +78,8 @@ def _types(atoms: Sequence[str], goal: Goal | TaskGoal) -> list[str]:
     facts += [f"object({o})." for o in sorted(objects)]
     facts += [f"pickupable({o})." for o in sorted(pick)]
     facts += [f"container({c})." for c in sorted(drawers)]
+    # part_of(C, O): drawer region C belongs to object O (LIBERO names a region <object>_<region>)
+    facts += [f"part_of({c},{o})." for c in sorted(drawers) for o in sorted(objects) if c.startswith(f"{o}_")]
     return facts
 
 

@@ -4,14 +4,14 @@ The rim grasp's phase machine (:class:`~vlaprobe.experts.rim_pick.RimPickPlace`:
 lift, carry, lower, release, retreat, and starting over when the object slips or moves) with another grasp:
 the grip point is the centre of the object's box, ``BODY_DEPTH`` below its top (half its height for flat
 objects), and the fingers close across the box's narrower horizontal side. A descent stopped early (a
-neighbour, the floor) grasps the other side next.
+neighbour, the floor) grasps the other side next, unless that side is wider than ``BODY_MAX_SPAN`` (7 cm).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from vlaprobe.experts.geometry import BODY_DEPTH, BODY_MIN_DEPTH
+from vlaprobe.experts.geometry import BODY_DEPTH, BODY_MAX_SPAN, BODY_MIN_DEPTH
 from vlaprobe.experts.rim_pick import RimPickPlace
 
 X_AXIS, Y_AXIS = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
@@ -31,12 +31,15 @@ class BodyPickPlace(RimPickPlace):
         return point
 
     def _choose_side(self, lo: np.ndarray, hi: np.ndarray) -> None:
-        """Close across the narrower horizontal side of the box (the other one after a blocked descent)."""
+        """Close across the narrower horizontal side of the box (the other one after a blocked descent, unless it
+        is wider than ``BODY_MAX_SPAN``: the fingers would straddle what they cannot take)."""
         self._plan_xy = 0.5 * (lo[:2] + hi[:2])
         size = hi - lo
         axis = X_AXIS if size[0] <= size[1] else Y_AXIS
         if any(abs(float(axis @ b)) > 0.5 for b in self._blocked):
-            axis = Y_AXIS if axis is X_AXIS else X_AXIS
+            other = Y_AXIS if axis is X_AXIS else X_AXIS
+            if float(other[:2] @ size[:2]) <= BODY_MAX_SPAN:
+                axis = other
             self._blocked.clear()
         self._side = axis
         self._depth = min(BODY_DEPTH, max(0.5 * float(size[2]), BODY_MIN_DEPTH))

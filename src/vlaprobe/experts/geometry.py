@@ -94,6 +94,7 @@ def _down_rotation(finger_axis: np.ndarray) -> np.ndarray:
 # Body grasps (boxes, cans, bottles): the grip point below the object's top.
 BODY_DEPTH = 0.03  # at most this far below the top (the hand's underside is ~2.6 cm above the grip point)
 BODY_MIN_DEPTH = 0.008  # at least this far below the top (flat boxes: half their height otherwise)
+BODY_MAX_SPAN = 0.07  # a body grasp never straddles a wider side (the open fingers take ~8 cm, pads included)
 
 # Knobs (the flat stove's: a bar 7 cm x 2.4 cm on a hinge about the vertical).
 KNOB_DEPTH = 0.012  # grip point below the handle's top

@@ -44,7 +44,9 @@ of its collision-geom bounding box.
   grip drifts open by under 0.2 mm/s, an open command opens it at 20-45 mm/s), or when they are shut on nothing
   (opening below ``GRIP_MIN_OPENING`` = 2 mm; a bowl's wall holds them ~4.5 mm apart). At most one object is
   grasped: the one already held, else among those both fingers touch the one whose box centre is nearest the
-  grip point. Stateful (the object held at the previous step): :meth:`Labeler.reset` at every episode start.
+  grip point. When no object has both fingers on it, a finger touching an object stacked on ``a`` (in contact,
+  centre higher) counts as touching ``a``: lifting a stack, one finger may press only the top object (LIBERO-90
+  task 63, the bowls stacked for the tray). Stateful (the object held at the previous step): :meth:`Labeler.reset` at every episode start.
   **So every grasped row has a finger in contact with ``a`` or within ``SLIP_GAP`` of it**, not always a
   MuJoCo contact (issue #10 asked for that): without the slip rule the 13 rows would split one grasp in two
   (a flicker). ``tests/envs/test_action_labels.py`` checks exactly this bound.
@@ -187,10 +189,19 @@ def grasped_vector(scene: Scene, state: WorldState, held: int = -1) -> np.ndarra
             out[held] = True
             return out
     pinched = left & right
+    if not pinched.any():  # a stack lifted together: a finger may touch only the object riding on top
+        pinched = _through_stack(state, left, n_pick) & _through_stack(state, right, n_pick)
     if pinched.any():
         dist = np.linalg.norm(centers(state)[:n_pick] - state.eef_pos, axis=1)
         out[int(np.argmin(np.where(pinched, dist, np.inf)))] = True
     return out
+
+
+def _through_stack(state: WorldState, touch: np.ndarray, n_pick: int) -> np.ndarray:
+    """(P,) a finger touches ``a``, or an object in contact with ``a`` whose centre is higher (stacked on it)."""
+    z = centers(state)[:n_pick, 2]
+    above = state.contact[:n_pick, :n_pick] & (z[:, None] > z[None, :])  # [b, a]: b touches a, higher
+    return touch | (touch[:, None] & above).any(axis=0)
 
 
 def resting(scene: Scene, state: WorldState, i: int) -> bool:

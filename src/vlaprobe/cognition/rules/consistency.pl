@@ -11,7 +11,7 @@
 
 % --- support ---------------------------------------------------------------------------------------------
 message(on_and_inside, "an object is both on something and inside a drawer").
-violation(on_and_inside, (on(X,Y), inside(X,C))) :- on(X,Y), inside(X,C), container(C).
+violation(on_and_inside, (on(X,Y), inside(X,C))) :- on(X,Y), inside(X,C), container(C), not(part_of(C,Y)).
 
 message(on_two_supports, "an object is on two things at once").
 violation(on_two_supports, (on(X,Y), on(X,Z))) :- on(X,Y), on(X,Z), Y @< Z.
