@@ -120,3 +120,16 @@ class TaskColumns:
         if not any(self.undefined.values()):
             return {}
         return defined_attrs(atom_names, {h: v for h, v in self.undefined.items() if v})
+
+
+def undefined_counts(
+    attrs: Sequence[Mapping[str, Json]], atom_names: Mapping[str, Sequence[str]]
+) -> dict[str, tuple[int, int]]:
+    """Head -> (atoms undefined in some episode, episodes leaving some atom undefined), from the episodes'
+    attributes (``vlaprobe info``)."""
+    out = {}
+    for head, names in atom_names.items():
+        rows = [~read_defined(a, atom_names, head) for a in attrs]
+        undefined = np.stack(rows) if rows else np.zeros((0, len(names)), bool)
+        out[head] = (int(undefined.any(0).sum()), int(undefined.any(1).sum()))
+    return out
