@@ -121,7 +121,7 @@ def train_on_data(
     heads, filters, skipped_heads = _filter_atoms(data, cfg, heads, fold_rows)  # 2. atoms that vary
     columns = _columns(heads, filters)
     targets = np.concatenate([data.labels[h][:, filters[h].kept] for h in heads], axis=1)
-    defined = _targets_defined(data, heads, filters)  # None unless a union store leaves atoms undefined
+    defined = data.targets_defined({h: filters[h].kept for h in heads})  # None: all defined
     column_head = np.concatenate([np.full(len(filters[h].kept), i) for i, h in enumerate(heads)])
     fitted, probes = _fit(data, cfg, seeds, targets, fold_rows, column_head, defined)  # 3. probes, controls
     trained = time.perf_counter()
@@ -194,7 +194,7 @@ def _filter_atoms(
     held = np.concatenate([te for _, te in fold_rows])
     filters = {}
     for h in heads:
-        mask = _mask(data, h)
+        mask = data.partly_defined(h)
         filters[h] = filter_labels(
             [data.labels[h][tr] for tr, _ in fold_rows],
             data.atom_names[h],
@@ -340,21 +340,6 @@ def _check_heads(data: ProbeData, cfg: TrainConfig) -> list[str]:
     return list(cfg.heads)
 
 
-def _mask(data: ProbeData, head: str) -> np.ndarray | None:
-    """The head's defined mask (steps, atoms), None where every entry is defined (single-vocabulary stores: the
-    figures are then computed exactly as without masks)."""
-    mask = data.defined_mask(head)
-    return None if mask.all() else mask
-
-
-def _targets_defined(data: ProbeData, heads: list[str], filters: dict[str, LabelFilter]) -> np.ndarray | None:
-    """bool (steps, columns) aligned with the targets: which entries are defined (None: all)."""
-    masks = {h: _mask(data, h) for h in heads}
-    if all(m is None for m in masks.values()):
-        return None
-    return np.concatenate([data.defined_mask(h)[:, filters[h].kept] for h in heads], axis=1)
-
-
 def _columns(heads: list[str], filters: dict[str, LabelFilter]) -> dict[str, np.ndarray]:
     """Column range of each head in the concatenated target matrix."""
     out, start = {}, 0
@@ -391,7 +376,7 @@ def _observer(
         check_no_leak(observer.episode, train_rows, test_rows)
     targets = np.concatenate([observer.labels[h][:, filters[h].kept] for h in heads], axis=1)
     column_head = np.concatenate([np.full(len(filters[h].kept), i) for i, h in enumerate(heads)])
-    defined = _targets_defined(observer, heads, filters)
+    defined = observer.targets_defined({h: filters[h].kept for h in heads})
     fitted = cross_fit(observer, targets, fold_rows, cfg, seeds, 0, column_head, defined)
     obs_weights = (
         weights
