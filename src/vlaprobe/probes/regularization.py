@@ -114,16 +114,19 @@ def _held_out(
     fold_rows: list[np.ndarray],
     threshold_logit: float,
     chunk: int = 2,
+    defined: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(layers, folds, scored) held-out log-loss and balanced accuracy of each fold's columns on its rows.
 
     Fold f's probes are the columns ``f * scored ... (f + 1) * scored`` of ``w``, ``b``; its held-out rows are
-    ``fold_rows[f]``; ``truth`` is bool (rows, scored).
+    ``fold_rows[f]``; ``truth`` is bool (rows, scored). ``defined`` (rows, scored) bool leaves the undefined
+    entries out of both (NaN where a fold holds out no defined row of an atom).
     """
     num_layers, scored = x.shape[0], truth.shape[1]
     loss = np.empty((num_layers, len(fold_rows), scored))
     balanced = np.empty_like(loss)
     y = torch.as_tensor(truth, dtype=torch.float32, device=x.device)
+    d = None if defined is None else torch.as_tensor(defined, dtype=torch.float32, device=x.device)
     for start in range(0, num_layers, chunk):
         part = slice(start, min(num_layers, start + chunk))
         for f, rows in enumerate(fold_rows):
@@ -134,8 +137,17 @@ def _held_out(
                 x[part].index_select(1, index),
                 w[part, :, cols].to(x.device),
             )
-            loss[part, f] = (F.softplus(z) - y[index] * z).mean(1).cpu().numpy()
-            counts = confusion_by_group((z > threshold_logit).cpu(), truth[rows], np.zeros(len(rows)), 1)
+            entry = F.softplus(z) - y[index] * z
+            if d is None:
+                loss[part, f] = entry.mean(1).cpu().numpy()
+            else:
+                n = d[index].sum(0)
+                mean = (entry * d[index]).sum(1) / n.clamp_min(1.0)
+                loss[part, f] = torch.where(n > 0, mean, torch.nan).cpu().numpy()
+            held = None if defined is None else defined[rows]
+            counts = confusion_by_group(
+                (z > threshold_logit).cpu(), truth[rows], np.zeros(len(rows)), 1, held
+            )
             balanced[part, f] = metrics_from_counts(counts[0])["balanced_accuracy"]
     return loss, balanced
 
@@ -153,12 +165,19 @@ def _group_mean(x: np.ndarray, scored_group: np.ndarray, ids: np.ndarray) -> np.
 
 
 def choose_c(
-    x: torch.Tensor, y: torch.Tensor, rows: np.ndarray, groups: ColumnGroups, cfg: ProbeConfig, seed: int
+    x: torch.Tensor,
+    y: torch.Tensor,
+    rows: np.ndarray,
+    groups: ColumnGroups,
+    cfg: ProbeConfig,
+    seed: int,
+    defined: torch.Tensor | None = None,
 ) -> tuple[CrossValidation | None, np.ndarray]:
     """C per (layer, column) for training rows ``rows`` (features ``x`` (layers, rows, hidden), targets ``y``).
 
-    Returns the cross-validation record (None when no fold can be held out: then ``cfg.c_without_cv``) and
-    (layers, columns) C values.
+    ``defined`` (rows, columns) 0/1, when given: the undefined entries are left out of every fit (weight 0,
+    the L2 strength counting the defined rows) and of every held-out score. Returns the cross-validation
+    record (None when no fold can be held out: then ``cfg.c_without_cv``) and (layers, columns) C values.
     """
     grid = sorted(float(c) for c in cfg.c_grid)
     num_layers = x.shape[0]
@@ -172,14 +191,18 @@ def choose_c(
     ys = y[:, scored]
     in_fold = [np.isin(row_episode, f.train) for f in folds]
     masks = [torch.as_tensor(m, dtype=torch.float32, device=x.device) for m in in_fold]
-    weight = torch.cat([m[:, None].expand(-1, len(scored)) for m in masks], 1)  # (rows, folds * scored)
+    ds = None if defined is None else defined[:, scored].to(x.device, torch.float32)
+    fits = [m[:, None].expand(-1, len(scored)) if ds is None else m[:, None] * ds for m in masks]
+    weight = torch.cat(fits, 1)  # (rows, folds * scored)
+    counts = [f.sum(0).cpu().numpy() for f in fits]  # per fold, the rows each column is fit on
     targets = ys.repeat(1, len(folds))
     truth = ys.cpu().numpy() > 0.5
     held_rows = [np.flatnonzero(~m) for m in in_fold]
+    held_defined = None if ds is None else ds.cpu().numpy() > 0.5
     threshold_logit = math.log(cfg.threshold / (1 - cfg.threshold))
     losses, scores, start = [], [], None
     for c in grid:  # ascending: each C starts from the solution of the stronger penalty before it
-        l2 = np.concatenate([np.full(len(scored), l2_of_c(c, float(m.sum()))) for m in masks])
+        l2 = np.concatenate([l2_of_c(c, n) for n in counts])
         l2_t = torch.as_tensor(l2, dtype=torch.float32)[None].expand(num_layers, -1).contiguous()
         w, b, _ = fit_logistic(
             x,
@@ -193,7 +216,7 @@ def choose_c(
             init=start,
         )
         start = (w, b)
-        loss, balanced = _held_out(x, truth, w, b, held_rows, threshold_logit)
+        loss, balanced = _held_out(x, truth, w, b, held_rows, threshold_logit, defined=held_defined)
         losses.append(loss)
         scores.append(balanced)
     scored_group = groups.group[scored]

@@ -99,6 +99,7 @@ def fit_probes(
     *,
     penalized: torch.Tensor | None = None,
     init: tuple[torch.Tensor, torch.Tensor] | None = None,
+    defined: np.ndarray | None = None,
 ) -> LinearProbes:
     """Fit one multi-label probe per layer on ``rows`` of ``hidden`` (layers, steps, hidden).
 
@@ -106,7 +107,9 @@ def fit_probes(
     (one value, or one per (layer, atom)), the single value of ``cfg.c_grid``, or chosen per layer and column
     group by cross-validation over the training episodes (needs ``groups``). Class balancing (``cfg.balance``)
     weights positives by the training negative/positive ratio. ``penalized`` and ``init``: as
-    :func:`~vlaprobe.probes.lbfgs.fit_logistic`'s.
+    :func:`~vlaprobe.probes.lbfgs.fit_logistic`'s. ``defined`` (steps, atoms) bool like ``targets``, when given:
+    an undefined entry (an atom over an object absent from the row's task) is left out of its atom's fit, C
+    search and class balance (weight 0; the L2 strength counts the defined rows).
     """
     device = resolve_device(cfg.device)
     rows = np.sort(np.asarray(rows))
@@ -114,7 +117,13 @@ def fit_probes(
         raise ValueError("no training rows")
     x, mean, std = training_matrix(hidden, rows, device, cfg.standardize)
     y = torch.as_tensor(np.asarray(targets)[rows], dtype=torch.float32, device=device)
-    num_layers, n = x.shape[0], x.shape[1]
+    d = (
+        None
+        if defined is None
+        else torch.as_tensor(np.asarray(defined)[rows], dtype=torch.float32, device=device)
+    )
+    num_layers = x.shape[0]
+    n = x.shape[1] if d is None else d.sum(0).cpu().numpy()
     cv = None
     if c is not None or len(cfg.c_grid) == 1:
         given = c if c is not None else cfg.c_grid[0]
@@ -122,11 +131,13 @@ def fit_probes(
     elif groups is None:
         raise ValueError("choosing C by cross-validation needs the rows' episodes (groups=)")
     else:
-        cv, per_column = choose_c(x, y, rows, groups, cfg, seed)
-    weight = None
+        cv, per_column = choose_c(x, y, rows, groups, cfg, seed, d)
+    weight = d
     if cfg.balance:
-        freq = y.mean(0).clamp(1e-4, 1 - 1e-4)
+        freq = y.mean(0) if d is None else (y * d).sum(0) / d.sum(0).clamp_min(1.0)
+        freq = freq.clamp(1e-4, 1 - 1e-4)
         weight = 1 + ((1 - freq) / freq - 1) * y
+        weight = weight if d is None else weight * d
     l2 = torch.as_tensor(l2_of_c(per_column, n), dtype=torch.float32)
     w, b, conv = fit_logistic(
         x,
