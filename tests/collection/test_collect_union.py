@@ -75,3 +75,47 @@ def test_same_scenes_write_no_attribute(tmp_path: Path, capsys: pytest.CaptureFi
     assert not store.records_defined() and store.atom_names["object"] == list(
         build_vocabulary(SCENE).object_atoms
     )
+
+
+@pytest.mark.libero
+@pytest.mark.heavy
+@pytest.mark.timeout(1200)
+def test_libero_object_store_is_the_union_of_its_tasks(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Tasks 0 and 1 of LIBERO-object (different groceries), one expert episode each, the tiny model observing:
+    the store has the union vocabulary, task 1's object is undefined in task 0's episode, and `vlaprobe train`
+    runs on it, dropping the atoms a training task does not define (leaving one task out, as no task has 2
+    episodes; no atom defined in both tasks varies in both, so the frequency filter is off)."""
+    from vlaprobe.cli import main as cli_main
+    from vlaprobe.envs.bddl_scene import task_scene
+    from vlaprobe.envs.suite_vocabulary import union_vocabulary
+
+    store_path = tmp_path / "store"
+    argv = [
+        "collect", "--suite", "libero_object", "--out", str(store_path), "--tasks", "0", "1",
+        "--episodes-per-task", "1", "--workers", "1", "--first-init", "0", "--model", "tiny", "--device", "cpu",
+        "--env.image-size", "64", "--no-progress",
+    ]  # fmt: skip
+    assert cli_main(argv) == 0
+    store = ActivationStore.open(store_path)
+    scenes = [task_scene("libero_object", t) for t in (0, 1)]
+    union = union_vocabulary(scenes)
+    assert store.atom_names == {h: list(union.atoms(h)) for h in HEADS}
+    only_1 = sorted(set(scenes[1].pickupable) - set(scenes[0].pickupable))
+    assert only_1, "tasks 0 and 1 of LIBERO-object should differ in their objects"
+    grasp = store.atom_names["action"].index(f"grasped({only_1[0]})")
+    keys = {e.task: e.key for e in store.episodes()}
+    assert sorted(keys) == [0, 1]
+    assert not store.defined("action", [keys[0]])[:, grasp].any()  # task 1's object: undefined in task 0
+    assert store.defined("action", [keys[1]])[:, grasp].all()
+    capsys.readouterr()
+    assert cli_main(["info", str(store_path)]) == 0
+    assert "undefined object " in capsys.readouterr().out
+    train = [
+        "train", "--store", str(store_path), "--split", "leave-one-task-out", "--layers", "0", "16",
+        "--bootstrap", "20", "--auprc-bootstrap", "0", "--no-conditional", "--probe.c-grid", "1.0",
+        "--no-shuffled-control", "--min-frequency", "0", "--max-frequency", "1",
+    ]  # fmt: skip
+    assert cli_main(train) == 0
+    assert "dropped as undefined" in capsys.readouterr().out
