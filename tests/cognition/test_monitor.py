@@ -24,6 +24,7 @@ from vlaprobe.cognition.monitor import (
     read_monitor,
     report_section,
 )
+from vlaprobe.collection.defined import defined_attrs
 from vlaprobe.collection.store import EpisodeInfo
 from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.configs.monitor import MonitorConfig
@@ -53,9 +54,11 @@ def write_run(
     first_seed: int = 0,
     region_goals: tuple[int, ...] = (),
     heads: tuple[str, ...] = ("object", "action"),
+    undefined: dict[int, list[str]] | None = None,
 ) -> tuple[Path, Path]:
     """Three episodes; the hidden state spells the labels (+-1), except where the probes should err. The episodes
-    of ``region_goals`` record a goal onto a table region (no atom follows it); probes of ``heads`` only."""
+    of ``region_goals`` record a goal onto a table region (no atom follows it); probes of ``heads`` only;
+    ``undefined``: episode -> object atoms it leaves undefined (a union store's ``atoms_defined``)."""
     meta = {
         "atom_names": ATOMS, "model_id": "fake", "model": {"model_id": "fake"}, "num_hidden_states": 2,
         "hidden_size": SIZE, "pooling": "last_prompt", "driver": "expert", "suite": "libero_spatial",
@@ -83,7 +86,10 @@ def write_run(
             )
             arrays_ = {"hidden": hidden, "object_atoms": y[:, :n_obj], "action_atoms": y[:, n_obj:]}
             place = REGION if e in region_goals else PLATE
-            writer.write_episode(info, arrays_, {"goal": {"pick": "akita_black_bowl_1", "place": place}})
+            gone = defined_attrs(ATOMS, {"object": (undefined or {})[e]}) if e in (undefined or {}) else {}
+            writer.write_episode(
+                info, arrays_, {"goal": {"pick": "akita_black_bowl_1", "place": place}, **gone}
+            )
     # probes: every atom that varies, the flicker atom, and one constant-true atom dropped at its majority
     y = labels()
     varying = set(np.flatnonzero(y.any(0) & ~y.all(0)).tolist()) | {VOCAB.object_atoms.index(FLICKER)}
@@ -144,6 +150,28 @@ def test_monitor_compares_truth_and_probes(run: tuple[Path, Path]) -> None:
     written = read_monitor(probes)
     assert written.probes.violations["left_right_converse"] == 1
     assert json.dumps(written.to_json()) == json.dumps(result.to_json())  # the round trip (NaN included)
+
+
+def test_undefined_atoms_are_neither_believed_nor_scored(run: tuple[Path, Path], tmp_path: Path) -> None:
+    """A union store: the flicker atom is undefined in episode 1 (stored false); the probes' one-step true there
+    is no belief, no violation, no flip and no cell of the agreement. Elsewhere the figures are the spatial run's."""
+    column = VOCAB.object_atoms.index(FLICKER)
+    assert not labels()[:, column].any()  # stored as 0, as the writer stores an undefined atom
+    store, probes = write_run(tmp_path, undefined={1: [FLICKER]})
+    before = monitor(MonitorConfig(store=run[0], probes=run[1], debounce=1, out=tmp_path / "spatial"))
+    after = monitor(MonitorConfig(store=store, probes=probes, debounce=1))
+    assert {r: n for r, n in after.probes.violations.items() if n} == {"towards_not_one": 1}
+    assert [e.violations_probes for e in after.per_episode] == [0, 0, 1]
+    flip_steps = 3 * (len(STEPS) - 1)
+    assert after.probes.flips_per_step * flip_steps == before.probes.flips_per_step * flip_steps - 2
+    y = labels()
+    probed = len(set(np.flatnonzero(y.any(0) & ~y.all(0)).tolist()) | {column})
+    cells = 3 * len(STEPS) * probed
+    agree = round(before.probes.belief_agreement * cells)  # the flicker's one disagreeing cell among them
+    # episode 1's flicker column leaves the cells: its 19 agreeing steps and its one disagreeing step
+    expected = (agree - (len(STEPS) - 1)) / (cells - len(STEPS))
+    assert after.probes.belief_agreement == pytest.approx(expected)
+    assert after.probes.belief_agreement > before.probes.belief_agreement
 
 
 def test_monitor_file_versions(run: tuple[Path, Path], tmp_path: Path) -> None:

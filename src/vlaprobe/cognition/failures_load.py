@@ -55,6 +55,7 @@ def load_episodes(cfg: FailuresConfig) -> tuple[list[EpisodeData], str, int, Tok
     from vlaprobe.cognition.failure_scores import cognition_columns, run_cognition
     from vlaprobe.cognition.plan import TaskGoal, stored_task_goal
     from vlaprobe.cognition.readout import HEADS, ProbeReadout
+    from vlaprobe.collection.defined import only_defined
     from vlaprobe.collection.store import ActivationStore
     from vlaprobe.collection.verify import require_intact
 
@@ -80,11 +81,13 @@ def load_episodes(cfg: FailuresConfig) -> tuple[list[EpisodeData], str, int, Tok
                 store.atom_names["object"], store.atom_names["action"], goal, probed=probed
             )
         if readout is None:
-            obj, act = store.labels("object", [info.key]), store.labels("action", [info.key])
+            values = {h: store.labels(h, [info.key]) for h in HEADS}
         else:
-            pred = readout.assign_steps({h: store.layer(readout.layers[h], [info.key]) for h in HEADS})
-            obj, act = pred.values["object"], pred.values["action"]
-        steps = run_cognition(cogs[goal], obj, act)
+            values = readout.assign_steps(
+                {h: store.layer(readout.layers[h], [info.key]) for h in HEADS}
+            ).values
+        values = only_defined(values, store.episode_defined(info.key))  # undefined atoms are never asserted
+        steps = run_cognition(cogs[goal], values["object"], values["action"])
         cols, rules, subgoal = cognition_columns(steps)
         tokens = None
         if observer is not None:

@@ -6,7 +6,9 @@ their training majority). The figures compare the two runs step by step; ``monit
 per-rule and per-episode details.
 
 Episodes whose goal no atom can follow are left out, and probes without an action head read its atoms as unknown;
-both are listed in ``monitor.json`` and printed (:meth:`MonitorResult.gaps`), never dropped in silence.
+both are listed in ``monitor.json`` and printed (:meth:`MonitorResult.gaps`), never dropped in silence. In a
+union store, the atoms an episode leaves undefined (``collection.defined``) are false in both runs and left out
+of the agreement figures.
 
 Counting: a violation is counted once when it appears (not once per step it lasts); flips are changes of a
 probed atom between consecutive steps, before (raw predictions) and after debouncing (beliefs).
@@ -36,6 +38,7 @@ from vlaprobe.cognition.monitor_inputs import (
 )
 from vlaprobe.cognition.plan import TaskGoal
 from vlaprobe.cognition.readout import HEADS, ProbeReadout
+from vlaprobe.collection.defined import only_defined
 from vlaprobe.configs.monitor import CognitionConfig, MonitorConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject, from_json, read_versioned, write_atomic
@@ -246,6 +249,7 @@ class _Pair:
     truth: _Run
     probes: _Run
     raw: np.ndarray  # (T, probed atoms) bool
+    defined: np.ndarray  # (atoms,) bool: the atoms defined in the episode (the others are left out)
 
 
 def _pair(
@@ -266,11 +270,14 @@ def _pair(
             Cognition(obj_atoms, act_atoms, goal, ccfg, probed=readout.probed, unknown=unknown),
         )
     cog_truth, cog_probes = cogs[goal]
-    truth = _run(cog_truth, store.labels("object", [key]), store.labels("action", [key]))
+    defined = store.episode_defined(key)
+    labels = only_defined({h: store.labels(h, [key]) for h in HEADS}, defined)
+    truth = _run(cog_truth, labels["object"], labels["action"])
     pred = readout.assign_steps({h: store.layer(layer, [key]) for h, layer in readout.layers.items()})
-    run = _run(cog_probes, pred.values["object"], pred.values["action"])
-    raw = np.concatenate([pred.values["object"], pred.values["action"]], axis=1)[:, mask]
-    return _Pair(key, truth, run, raw)
+    values = only_defined(pred.values, defined)
+    run = _run(cog_probes, values["object"], values["action"])
+    raw = np.concatenate([values["object"], values["action"]], axis=1)[:, mask]
+    return _Pair(key, truth, run, raw, np.concatenate([defined[h] for h in HEADS]))
 
 
 def _episode_figures(p: _Pair) -> EpisodeFigures:
@@ -325,10 +332,11 @@ def _figures(pairs: list[_Pair], mask: np.ndarray, rules: list[str]) -> tuple[Vi
     truth_v: Counter[str] = sum((p.truth.new_violations() for p in pairs), Counter())
     probe_v: Counter[str] = sum((p.probes.new_violations() for p in pairs), Counter())
     agree_sub = sum(int((p.truth.active() == p.probes.active()).sum()) for p in pairs)
-    agree_ep = np.array([int((p.truth.beliefs[:, mask] == p.probes.beliefs[:, mask]).sum()) for p in pairs])
-    still_ep = np.array([int((p.truth.beliefs[:, mask] == p.truth.beliefs[:1, mask]).sum()) for p in pairs])
-    cells_ep = np.array([len(p.truth.steps) * int(mask.sum()) for p in pairs])
-    agree = int(agree_ep.sum())
+    scored = [(p, mask & p.defined) for p in pairs]  # probed atoms defined in the episode: the scored cells
+    agree_ep = np.array([int((p.truth.beliefs[:, m] == p.probes.beliefs[:, m]).sum()) for p, m in scored])
+    still_ep = np.array([int((p.truth.beliefs[:, m] == p.truth.beliefs[:1, m]).sum()) for p, m in scored])
+    cells_ep = np.array([len(p.truth.steps) * int(m.sum()) for p, m in scored])
+    agree, cells = int(agree_ep.sum()), int(cells_ep.sum())
     raw_flips = sum(int((p.raw[1:] != p.raw[:-1]).sum()) for p in pairs)
     belief_flips = sum(int((p.probes.beliefs[1:, mask] != p.probes.beliefs[:-1, mask]).sum()) for p in pairs)
     flip_steps = max(steps - len(pairs), 1)
@@ -338,8 +346,8 @@ def _figures(pairs: list[_Pair], mask: np.ndarray, rules: list[str]) -> tuple[Vi
         {r: probe_v.get(r, 0) for r in rules},
         goal_detection=goal_detection([_episode_figures(p) for p in pairs]),
         subgoal_accuracy=agree_sub / max(steps, 1),
-        belief_agreement=agree / max(steps * int(mask.sum()), 1),
-        belief_agreement_step0=int(still_ep.sum()) / max(steps * int(mask.sum()), 1),
+        belief_agreement=agree / max(cells, 1),
+        belief_agreement_step0=int(still_ep.sum()) / max(cells, 1),
         belief_agreement_gain_95=gain_interval(agree_ep, still_ep, cells_ep),
         flips_per_step=raw_flips / flip_steps,
         flips_per_step_debounced=belief_flips / flip_steps,

@@ -53,6 +53,26 @@ def read_defined(attrs: Mapping[str, Json], atom_names: Mapping[str, Sequence[st
     return mask
 
 
+def episode_defined(
+    attrs: Mapping[str, Json], atom_names: Mapping[str, Sequence[str]]
+) -> dict[str, np.ndarray]:
+    """Head -> bool (atoms,): one episode's :func:`read_defined` for every head (all True without the attribute)."""
+    return {head: read_defined(attrs, atom_names, head) for head in atom_names}
+
+
+def only_defined(
+    values: Mapping[str, np.ndarray], defined: Mapping[str, np.ndarray] | None
+) -> dict[str, np.ndarray]:
+    """Head -> ``values`` (atoms,) or (T, atoms) with the episode's undefined atoms False: an undefined atom is
+    neither true nor false, so it is never asserted (read as stored labels or as probe predictions alike).
+    The arrays themselves where every atom is defined (``defined`` None: a live episode)."""
+    out = {}
+    for head, v in values.items():
+        mask = None if defined is None else defined.get(head)
+        out[head] = v if mask is None or mask.all() else np.asarray(v, bool) & mask
+    return out
+
+
 def defined_rows(
     attrs: Sequence[Mapping[str, Json]],
     lengths: Sequence[int],

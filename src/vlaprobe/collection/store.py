@@ -28,7 +28,7 @@ import numpy as np
 import zarr
 from numpy.typing import DTypeLike
 
-from vlaprobe.collection.defined import ATTR, defined_rows, undefined_counts
+from vlaprobe.collection.defined import ATTR, defined_rows, episode_defined, undefined_counts
 from vlaprobe.collection.episode import EpisodeAttrs, EpisodeSteps, stored_records
 from vlaprobe.collection.storemeta import (
     FORMAT,
@@ -317,6 +317,10 @@ class ActivationStore:
         self.labels(head, [])  # the head check
         infos = self._resolve(episodes)
         return defined_rows(self._attrs(infos), [e.length for e in infos], self.atom_names, head)
+
+    def episode_defined(self, key: str) -> dict[str, np.ndarray]:
+        """Head -> bool (atoms,): which atoms are defined in episode ``key`` (all, outside union stores)."""
+        return episode_defined(self._attrs(self._resolve([key]))[0], self.atom_names)
 
     def _attrs(self, infos: list[EpisodeInfo]) -> list[JsonObject]:
         return [dict(group_at(self._root, f"episodes/{e.key}").attrs) for e in infos]

@@ -17,6 +17,7 @@ import numpy as np
 from vlaprobe.cognition.core import CognitionStep, Violation
 from vlaprobe.cognition.plan import TaskGoal
 from vlaprobe.cognition.subgoals import Event, SubgoalState
+from vlaprobe.collection.defined import only_defined
 from vlaprobe.configs.takeover import TakeoverMode
 from vlaprobe.live import protocol as P
 from vlaprobe.live.takeover import LiveTakeovers, TakeoverTrack, alarm_message
@@ -86,6 +87,9 @@ class EpisodeSpec:
     """Who hands the policy's control to the scripted expert (``serve --takeover``; live source only)."""
     seed: int = 0
     """The episode's seed (live source: it also draws the random control's takeover rows)."""
+    defined: dict[str, np.ndarray] | None = None
+    """Head -> bool (atoms,): the atoms defined in a stored episode of a union store (the others are never
+    asserted nor scored); None: every atom."""
 
 
 def _ms(timings: StepTimings | None, name: str) -> float:
@@ -184,7 +188,7 @@ class StepBuilder:
         t0 = time.perf_counter()
         reading = self.readout.read(rec.hidden)
         t1 = time.perf_counter()
-        values = {h: np.asarray(reading[h].values, bool) for h in HEADS}
+        values = only_defined({h: np.asarray(reading[h].values, bool) for h in HEADS}, self.spec.defined)
         cog = self._cognition()
         c = cog.step(values["object"], values["action"])
         alarm = None if self.takeovers is None else self.takeovers.observe(rec, c)
@@ -192,10 +196,10 @@ class StepBuilder:
         t2 = time.perf_counter()
         truth, truth_events, ct = None, [], None
         if rec.object_atoms is not None and rec.action_atoms is not None:
-            truth = {
-                "object": np.asarray(rec.object_atoms, bool),
-                "action": np.asarray(rec.action_atoms, bool),
-            }
+            truth = only_defined(
+                {"object": np.asarray(rec.object_atoms, bool), "action": np.asarray(rec.action_atoms, bool)},
+                self.spec.defined,
+            )
             if self._cog_truth is None:
                 self._cog_truth = self.make_cognition(self.spec.atoms, self.spec.goal, None)
             ct = self._cog_truth.step(truth["object"], truth["action"])
@@ -204,6 +208,8 @@ class StepBuilder:
                 self.goal_step_truth = t
             for h in HEADS:
                 probed = np.asarray(reading[h].probed, bool)
+                if self.spec.defined is not None:
+                    probed = probed & self.spec.defined[h]
                 self._agree[0] += int((values[h] == truth[h])[probed].sum())
                 self._agree[1] += int(probed.sum())
         t3 = time.perf_counter()

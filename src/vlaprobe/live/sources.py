@@ -223,6 +223,7 @@ class StoreEpisodes:
             goal=stored_task_goal(self.store.suite, info.task, attrs, f"stored episode {info.key}"),
             atoms=self.atoms,
             key=info.key,
+            defined=self.store.episode_defined(info.key),
         )
 
     def source(self, episode_id: str, hz: float | None) -> StoreSource:
