@@ -4,6 +4,7 @@ recomputed from the stored images by the store's observer (the store keeps the c
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -81,7 +82,7 @@ def load_episodes(cfg: FailuresConfig) -> tuple[list[EpisodeData], str, int, Tok
                 store.atom_names["object"], store.atom_names["action"], goal, probed=probed
             )
         if readout is None:
-            values = {h: store.labels(h, [info.key]) for h in HEADS}
+            values: Mapping[str, np.ndarray] = {h: store.labels(h, [info.key]) for h in HEADS}
         else:
             values = readout.assign_steps(
                 {h: store.layer(readout.layers[h], [info.key]) for h in HEADS}
