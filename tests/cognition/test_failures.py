@@ -191,3 +191,19 @@ def test_the_report_shows_the_failures_section(tmp_path: Path) -> None:
         and "ROC-AUC at 0.5" in html
         and "24 episodes" in html
     )
+
+
+def test_undefined_atoms_feed_no_belief_to_the_cognitions_columns(tmp_path: Path) -> None:
+    """A union store: the probes read an atom the episode leaves undefined (stored false) as true for 6 steps;
+    the cognition's columns of that episode see no violation (without the mask, a left-right violation)."""
+    from tests.cognition.test_monitor import FLICKER, write_run
+
+    from vlaprobe.cognition.failures_load import load_episodes
+
+    for undefined, violations in (None, {"left_right_converse"}), ({1: [FLICKER]}, set()):
+        folder = tmp_path / ("union" if undefined else "spatial")
+        store, probes = write_run(folder, undefined=undefined, flicker=6)
+        data, source, _, _ = load_episodes(FailuresConfig(store=store, probes=probes, out=folder / "out"))
+        assert source == str(probes) and len(data) == 3
+        assert {r for step in data[1].rules for r in step} == violations
+        assert data[1].cognition[:, 2].max() == len(violations)

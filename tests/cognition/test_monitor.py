@@ -55,10 +55,12 @@ def write_run(
     region_goals: tuple[int, ...] = (),
     heads: tuple[str, ...] = ("object", "action"),
     undefined: dict[int, list[str]] | None = None,
+    flicker: int = 1,
 ) -> tuple[Path, Path]:
     """Three episodes; the hidden state spells the labels (+-1), except where the probes should err. The episodes
     of ``region_goals`` record a goal onto a table region (no atom follows it); probes of ``heads`` only;
-    ``undefined``: episode -> object atoms it leaves undefined (a union store's ``atoms_defined``)."""
+    ``undefined``: episode -> object atoms it leaves undefined (a union store's ``atoms_defined``); ``flicker``:
+    steps the probes read the inconsistent atom as true in episode 1."""
     meta = {
         "atom_names": ATOMS, "model_id": "fake", "model": {"model_id": "fake"}, "num_hidden_states": 2,
         "hidden_size": SIZE, "pooling": "last_prompt", "driver": "expert", "suite": "libero_spatial",
@@ -70,7 +72,7 @@ def write_run(
             y = labels()
             x = y.astype(np.float32) * 2 - 1
             if e == 1:  # a one-step flicker of an inconsistent atom
-                x[3, VOCAB.object_atoms.index(FLICKER)] = 1
+                x[3 : 3 + flicker, VOCAB.object_atoms.index(FLICKER)] = 1
             if e == 2:  # the probes never see the goal
                 x[:, VOCAB.object_atoms.index(next(iter(PLACED)))] = -1
             hidden = np.stack([x, x]).astype(np.float16)
