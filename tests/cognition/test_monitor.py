@@ -56,11 +56,13 @@ def write_run(
     heads: tuple[str, ...] = ("object", "action"),
     undefined: dict[int, list[str]] | None = None,
     flicker: int = 1,
+    replayable: bool = False,
 ) -> tuple[Path, Path]:
     """Three episodes; the hidden state spells the labels (+-1), except where the probes should err. The episodes
     of ``region_goals`` record a goal onto a table region (no atom follows it); probes of ``heads`` only;
     ``undefined``: episode -> object atoms it leaves undefined (a union store's ``atoms_defined``); ``flicker``:
-    steps the probes read the inconsistent atom as true in episode 1."""
+    steps the probes read the inconsistent atom as true in episode 1; ``replayable``: with the columns a replay
+    reads (blank images, zero actions)."""
     meta = {
         "atom_names": ATOMS, "model_id": "fake", "model": {"model_id": "fake"}, "num_hidden_states": 2,
         "hidden_size": SIZE, "pooling": "last_prompt", "driver": "expert", "suite": "libero_spatial",
@@ -87,6 +89,10 @@ def write_run(
                 driver="expert",
             )
             arrays_ = {"hidden": hidden, "object_atoms": y[:, :n_obj], "action_atoms": y[:, n_obj:]}
+            if replayable:
+                actions = np.zeros((len(y), 7), np.float32)
+                arrays_ |= {"image": np.zeros((len(y), 224, 224, 3), np.uint8), "action": actions}
+                arrays_["predicted_action"] = actions
             place = REGION if e in region_goals else PLATE
             gone = defined_attrs(ATOMS, {"object": (undefined or {})[e]}) if e in (undefined or {}) else {}
             writer.write_episode(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -106,3 +107,35 @@ def test_live_episode_with_real_probes_and_cognition(fake_run: Path, tmp_path: P
         assert set(s.beliefs.retracted) <= believed  # only what was believed can be retracted
         believed = (believed - set(s.beliefs.retracted)) | set(s.beliefs.asserted)
     assert steps[0].timings.probes_ms >= 0 and steps[0].timings.model_ms >= 0
+
+
+def test_replay_of_a_union_store_leaves_undefined_atoms_out(tmp_path: Path) -> None:
+    """A stored episode leaves the inconsistent atom undefined (stored false) while the probes read it as true for
+    6 steps: its replay asserts no belief from it, counts no violation and scores no disagreement on it."""
+    from tests.cognition.test_monitor import FLICKER, STEPS, write_run
+
+    from vlaprobe.configs.monitor import CognitionConfig
+    from vlaprobe.live.pipeline import StepBuilder
+    from vlaprobe.live.replay import StoreReplays
+    from vlaprobe.live.serve import ProbeReading, cognition_factory
+    from vlaprobe.live.sources import StoreEpisodes
+    from vlaprobe.probes import ProbeSet
+
+    for undefined in None, {1: [FLICKER]}:
+        folder = tmp_path / ("union" if undefined else "spatial")
+        store, probes = write_run(folder, undefined=undefined, flicker=6, replayable=True)
+        readout = ProbeReading(ProbeSet.load(probes))
+        builder = partial(StepBuilder, readout=readout, make_cognition=cognition_factory(CognitionConfig()))
+        replays = StoreReplays(StoreEpisodes(store), builder)
+        record = replays.record("store-t00_i01_a00")
+        summary = record.end.summary
+        column = record.start.atoms.object.index(FLICKER)
+        predicted = [s.predicted.object.values[column] for s in record.steps]
+        cells = len(STEPS) * sum(int(readout.probed[h].sum()) for h in ("object", "action"))
+        if undefined is None:  # the spatial store: the flicker is believed, violates, disagrees
+            assert sum(predicted) == 6 and summary.violations.get("left_right_converse") == 1
+            assert summary.agreement == round(1 - 6 / cells, 4) < 1
+        else:
+            assert sum(predicted) == 0 and "left_right_converse" not in summary.violations
+            assert not any(FLICKER in s.beliefs.asserted for s in record.steps)
+            assert summary.agreement == 1.0
