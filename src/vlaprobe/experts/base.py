@@ -104,16 +104,21 @@ class ArmSkill:
             options.append((not low <= q - turn <= high, abs(turn), candidate))
         return min(options, key=lambda o: (o[0], o[1]))[2]
 
-    def _obstacle_boxes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """World centres, rotations and half sizes of the obstacle geoms' bounding boxes (exact for boxes)."""
-        model, data, g = self._model, self._data, self._obstacles
+    def _obstacle_boxes(self, geoms: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """World centres, rotations and half sizes of the obstacle geoms' (or ``geoms``') bounding boxes (exact
+        for boxes)."""
+        model, data = self._model, self._data
+        g = self._obstacles if geoms is None else geoms
         rot = data.geom_xmat[g].reshape(-1, 3, 3)
         centre = data.geom_xpos[g] + np.einsum("bij,bj->bi", rot, model.geom_aabb[g, :3])
         return centre, rot, model.geom_aabb[g, 3:]
 
-    def _corridor_top(self, a: np.ndarray, b: np.ndarray, width: float) -> float:
-        """Highest obstacle top whose footprint comes within ``width`` of the horizontal segment a-b."""
-        centre, rot, half = self._obstacle_boxes()
+    def _corridor_top(
+        self, a: np.ndarray, b: np.ndarray, width: float, geoms: np.ndarray | None = None
+    ) -> float:
+        """Highest obstacle (or ``geoms``) top whose footprint comes within ``width`` of the horizontal segment
+        a-b."""
+        centre, rot, half = self._obstacle_boxes(geoms)
         extent = np.einsum("bij,bj->bi", np.abs(rot), half)
         seg = b[:2] - a[:2]
         t = np.clip(((centre[:, :2] - a[:2]) @ seg) / max(float(seg @ seg), 1e-9), 0.0, 1.0)

@@ -23,6 +23,7 @@ from vlaprobe.experts.base import ArmSkill
 from vlaprobe.experts.geometry import (
     CLOSE,
     CLOSE_STEPS,
+    DRAWER_HAND_BELOW,
     DRAWER_MARGIN,
     DRAWER_PRE,
     DRAWER_SPEED,
@@ -30,6 +31,8 @@ from vlaprobe.experts.geometry import (
     OPEN_STEPS,
     PHASE_STEPS,
     POS_TOL,
+    TRAVEL_WIDTH,
+    TURN_FIRST,
     YAW_TOL,
     _down_rotation,
     _rotvec,
@@ -61,6 +64,8 @@ class Drawer(ArmSkill):
             for g in range(model.ngeom)
             if model.geom_bodyid[g] == self._body and (model.geom_contype[g] or model.geom_conaffinity[g])
         ]
+        fixture = model.body_rootid[self._body]
+        self._others = self._obstacles[model.body_rootid[model.geom_bodyid[self._obstacles]] != fixture]
         self.reset()
 
     def _geom_box(self, g: int) -> tuple[np.ndarray, np.ndarray]:
@@ -121,9 +126,13 @@ class Drawer(ArmSkill):
         if self.phase == "approach":
             front = handle + DRAWER_PRE * self._out
             target = front.copy()
-            if np.linalg.norm(front[:2] - pos[:2]) > 0.03:
-                target[2] = max(pos[2], front[2])  # in front first, then down
-            turned = np.linalg.norm(_rotvec(self._frame @ rot.T)) < YAW_TOL
+            turn = float(np.linalg.norm(_rotvec(self._frame @ rot.T)))
+            if np.linalg.norm(front[:2] - pos[:2]) > 0.03:  # in front first, then down
+                floor = self._travel_floor(pos, front)
+                target[2] = max(pos[2], front[2], floor)
+                if turn > TURN_FIRST or pos[2] < floor - 0.02:  # turn (the arm dips) and rise where it is
+                    target[:2] = pos[:2]
+            turned = bool(turn < YAW_TOL)
             if (np.linalg.norm(front - pos) < POS_TOL and turned) or self._phase_steps > 2 * PHASE_STEPS:
                 self._enter("insert")
             else:
@@ -171,11 +180,19 @@ class Drawer(ArmSkill):
             self._enter("home")
         if self.phase == "home":
             error = float(np.linalg.norm(self._anchor - pos))
-            turned = np.linalg.norm(_rotvec(self._frame @ rot.T)) < YAW_TOL
+            turned = bool(np.linalg.norm(_rotvec(self._frame @ rot.T)) < YAW_TOL)
             if not (error < POS_TOL and turned) and self._phase_steps < PHASE_STEPS:
                 return self._action(self._anchor, grip)
             self._enter("done")
         return self._hold(OPEN)
+
+    def _travel_floor(self, pos: np.ndarray, front: np.ndarray) -> float:
+        """The lowest grip height at which the hand, turned to face the drawer (fingers opening vertically: its
+        box reaches ``DRAWER_HAND_BELOW`` below the grip point), passes over what stands between it and the
+        point in front of the handle; the drawer's own fixture does not count (the hand ends in front of it).
+        Lower (or turning on the way: the arm dips ~5 cm while it turns), the hand knocked over a bottle
+        (LIBERO-90 task 29, init 3: the ketchup, which then lay where the bowl's free grasp sides were)."""
+        return self._corridor_top(pos, front, TRAVEL_WIDTH, self._others) + DRAWER_HAND_BELOW
 
     def _nearest_down(self, rot: np.ndarray) -> np.ndarray:
         """The pointing-down frame nearest to ``rot`` (fingers along or across the drawer's slide): tilting

@@ -25,6 +25,7 @@ TURN_COST = 0.001  # score per radian of yaw turn
 REACH_COST = 0.05  # score per metre of horizontal distance from the robot's base
 DEPTH_COST = 0.2  # score per metre of grasp depth given up
 BLOCKED_ANGLE = np.deg2rad(40)  # after a blocked descent, sides this close to it are avoided
+ARM_MARGIN = 0.02  # the arm's links (predicted at the grasp, ~2 cm off) should stay this far from obstacles
 # Motion.
 GAIN_D = 1.0  # damping gain on the grip point's velocity: the arm lags its goal, so braking avoids overshoot
 GAIN_I = 0.05  # integral gain (action units per step per unit error)
@@ -116,6 +117,12 @@ PUSH_DRIFT = 0.04  # the object this far off the push line: approach again from 
 
 # Drawers (opened by their handle from the front).
 DRAWER_PRE = 0.08  # pre-grasp (and retreat) distance in front of the handle
+DRAWER_HAND_BELOW = 0.11  # the hand facing a drawer reaches this far below the grip point (+1 cm margin)
+TRAVEL_WIDTH = (
+    0.13  # obstacles this close (horizontally) to the grip point's path count against its height (the hand
+)
+# facing a drawer trails 12.4 cm behind the grip point)
+TURN_FIRST = 0.3  # the hand turns to face the drawer where it is until within this (radians), then travels
 DRAWER_MARGIN = 0.02  # pull this far past LIBERO's open threshold (metres of slide)
 DRAWER_SPEED = (
     1.0  # action bound while reaching for the handle and pulling (0.5 took ~20 more steps per opening)

@@ -52,6 +52,11 @@ class Push(ArmSkill):
         self._deeper = 0.0  # how much deeper inside the rim a push starts after blocked descents
         self._enter("approach")
 
+    def _enter(self, phase: str) -> None:
+        super()._enter(phase)
+        if phase == "approach":  # a push the object resisted winds the integral up: the next approach stalls
+            self._integral = np.zeros(3)  # 3 cm short of its start (LIBERO-goal task 5, init 1)
+
     def _inside(self, state: WorldState) -> bool:
         offset = np.abs(state.pos[self._subject] - self._target.point(state, self._data))[:2]
         return bool(np.all(offset < PUSH_INSIDE * np.asarray(self._target.half)[:2]))

@@ -28,9 +28,11 @@ from __future__ import annotations
 import numpy as np
 
 from vlaprobe.envs.libero import LiberoTaskEnv
+from vlaprobe.experts.arm import ArmModel
 from vlaprobe.experts.base import ArmSkill
 from vlaprobe.experts.geometry import (
     APPROACH_ABOVE_RIM,
+    ARM_MARGIN,
     BLOCKED_ANGLE,
     CLEAR_MARGIN,
     CLEARANCE_CAP,
@@ -76,6 +78,7 @@ class RimPickPlace(ArmSkill):
 
     def __init__(self, env: LiberoTaskEnv, pick: str, place: Target, seed: int = 0) -> None:
         super().__init__(env, seed, avoid=pick)
+        self._arm = ArmModel(env, self._eef_site, self._gripper_geoms)
         self._pick = env.scene.tabletop.index(pick)
         self._goal_target = self._target = place
         self.reset()
@@ -158,7 +161,7 @@ class RimPickPlace(ArmSkill):
         base = self._data.xpos[self._robot_base]
         angles = 2 * np.pi * (np.arange(SIDES) + self.rng.uniform(-0.5, 0.5)) / SIDES
         sides = np.stack([np.cos(angles), np.sin(angles), np.zeros(SIDES)], axis=1)
-        best, best_score = (0, GRASP_DEPTHS[0]), -np.inf
+        candidates: list[tuple[float, int, float, np.ndarray]] = []  # (score, side, depth, grip point)
         for k, side in enumerate(sides):
             axis = self._wrist_axis(side)
             grip = centre + (radius - GRIP_INSET) * side
@@ -185,11 +188,32 @@ class RimPickPlace(ArmSkill):
                     - DEPTH_COST * (GRASP_DEPTHS[0] - depth)
                     - (1.0 if blocked else 0.0)
                 )
-                if score > best_score:
-                    best, best_score = (k, depth), score
-        k, self._depth = best
+                candidates.append((score, k, depth, grip - np.array([0.0, 0.0, depth])))
+        k, self._depth = self._clear_for_arm(candidates, sides)
         self._side = sides[k]
         self._finger_axis = self._wrist_axis(sides[k])
+
+    def _clear_for_arm(
+        self, candidates: list[tuple[float, int, float, np.ndarray]], sides: np.ndarray
+    ) -> tuple[int, float]:
+        """The best (side, depth) once the arm's links at each grasp are scored too (``_arm_penalty``): the
+        candidates are checked best first, until none left unchecked can still win (the arm only lowers a
+        score)."""
+        best, best_score = (candidates[0][1], candidates[0][2]), -np.inf
+        for score, k, depth, grip in sorted(candidates, key=lambda c: -c[0]):
+            if score <= best_score:
+                break
+            score -= self._arm_penalty(grip, self._wrist_axis(sides[k]))
+            if score > best_score:
+                best, best_score = (k, depth), score
+        return best
+
+    def _arm_penalty(self, grip: np.ndarray, finger_axis: np.ndarray) -> float:
+        """How far inside ``ARM_MARGIN`` of an obstacle the arm's links (elbow, forearm, wrist: not the gripper)
+        come with the grip point at ``grip`` (0 when farther): a forearm can reach into a drawer's front above
+        the object while the gripper is clear (LIBERO-90 task 29)."""
+        clearance = self._arm.clearance(grip, _down_rotation(finger_axis), self._obstacles, ARM_MARGIN)
+        return max(ARM_MARGIN - clearance, 0.0)
 
     def _block_side(self) -> None:
         """Give up the current grasp side: back off and plan again avoiding it."""
