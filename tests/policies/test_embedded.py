@@ -52,3 +52,18 @@ def test_shipped_model_produces_valid_actions() -> None:
         )
         assert np.all((step.action_tokens >= ACTION_ID_RANGE[0]) & (step.action_tokens < ACTION_ID_RANGE[1]))
         assert step.hidden.shape == (33, 64) and np.all(np.isfinite(step.hidden))
+
+
+def test_every_shipped_model_loads_by_name_within_the_size_limit() -> None:
+    from vlaprobe.policies.openvla.embedded import EMBEDDED_MODELS
+
+    assert "tiny-libero-diverse" in EMBEDDED_MODELS  # issue 38's observer (recipes/tiny-libero-diverse.yaml)
+    for name in EMBEDDED_MODELS:
+        folder = embedded_folder(name)
+        assert folder is not None and (folder / "model.safetensors").stat().st_size <= 25 * 2**20
+        policy = make_policy(PolicyConfig(name, device="cpu"))
+        assert policy.model_id == name and (policy.num_hidden_states, policy.hidden_size) == (33, 64)
+        step = policy.step(
+            np.zeros((256, 256, 3), np.uint8), "pick up the black bowl and place it on the plate"
+        )
+        assert np.all(np.isfinite(step.action)) and np.all(np.isfinite(step.hidden))

@@ -18,6 +18,8 @@ WEIGHTS = Path(__file__).parent / "weights"
 
 EMBEDDED_MODELS: dict[str, str] = {
     "tiny-libero": "the tiny OpenVLA trained on expert demonstrations of LIBERO-spatial (the default observer)",
+    "tiny-libero-diverse": "tiny-libero's shape trained on sampled layouts with perturbations and recovery "
+    "(recipes/tiny-libero-diverse.yaml; issue 38's observer that must look)",
 }
 """Name -> what it is."""
 
