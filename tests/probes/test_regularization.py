@@ -63,7 +63,7 @@ def _problem(seed: int = 0) -> tuple[torch.Tensor, torch.Tensor, np.ndarray, Col
 def searched() -> tuple[CrossValidation, np.ndarray, tuple]:
     x, y, rows, groups = _problem()
     cfg = ProbeConfig(device="cpu", c_grid=GRID, cv_folds=3, tol=1e-5, max_iter=1000)
-    cv, per_column = choose_c(x, y, rows, groups, cfg, seed=0)
+    cv, per_column, _ = choose_c(x, y, rows, groups, cfg, seed=0)
     assert cv is not None
     return cv, per_column, (x, y, rows, groups)
 
@@ -160,7 +160,7 @@ def test_one_training_episode_per_task_skips_the_search_with_a_warning() -> None
     x, y, rows, groups = _problem()
     one_each = dataclasses.replace(groups, episode_tasks=np.arange(12))  # 12 tasks, one episode each
     cfg = ProbeConfig(device="cpu", c_grid=GRID, cv_folds=3, c_without_cv=0.3)
-    cv, per_column = choose_c(x, y, rows, one_each, cfg, seed=0)
+    cv, per_column, _ = choose_c(x, y, rows, one_each, cfg, seed=0)
     assert cv is None and (per_column == 0.3).all()
     # the same data with the tasks shared by 4 episodes each is searched
     assert choose_c(x, y, rows, groups, cfg, seed=0)[0] is not None

@@ -14,10 +14,12 @@ The folds divide the *training* episodes and are shaped like the split that scor
 at least 2 training episodes are held out, so every held-out episode's task is trained on, as in the test
 split; with ``--split leave-one-task-out`` whole tasks are held out. The test episodes never influence C.
 Where nothing can be held out (one training episode per task) C is ``ProbeConfig.c_without_cv`` and
-``vlaprobe train`` warns. Per C, every (fold, atom) is one column of a single batched fit
-(:func:`~vlaprobe.probes.lbfgs.fit_logistic`), its fold's held-out rows weighted 0; the grid runs from the
-strongest penalty to the weakest, each fit starting from the previous one's solution (a warm start: the
-same minimiser, fewer iterations). The features are those of the final fit (standardised with the whole
+``vlaprobe train`` warns. Per fold and C, the fold's atoms are the columns of one batched fit
+(:func:`~vlaprobe.probes.lbfgs.fit_logistic`) on the fold's own training rows; the grid runs from the
+strongest penalty to the weakest, each fit starting from the fold's solution at the C before it (a warm
+start along the regularisation path, as scikit-learn's ``LogisticRegressionCV``: the same minimiser, fewer
+iterations), and the final fit on all training rows starts from the mean of the folds' solutions at the
+chosen C. The features are those of the final fit (standardised with the whole
 training split's statistics, which use no label). The held-out log-loss is recorded too (``loss``).
 """
 
@@ -108,35 +110,26 @@ def select_c(score: np.ndarray, grid: list[float], tolerance: float) -> np.ndarr
 
 def _held_out(
     x: torch.Tensor,
+    held: np.ndarray,
     truth: np.ndarray,
     w: torch.Tensor,
     b: torch.Tensor,
-    fold_rows: list[np.ndarray],
     threshold_logit: float,
     chunk: int = 2,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(layers, folds, scored) held-out log-loss and balanced accuracy of each fold's columns on its rows.
-
-    Fold f's probes are the columns ``f * scored ... (f + 1) * scored`` of ``w``, ``b``; its held-out rows are
-    ``fold_rows[f]``; ``truth`` is bool (rows, scored).
-    """
+    """(layers, scored) held-out log-loss and balanced accuracy of one fold's probes ``w`` (layers, hidden,
+    scored), ``b`` on its held-out rows ``held`` of ``x`` (layers, rows, hidden); ``truth`` bool (held, scored)."""
     num_layers, scored = x.shape[0], truth.shape[1]
-    loss = np.empty((num_layers, len(fold_rows), scored))
+    loss = np.empty((num_layers, scored))
     balanced = np.empty_like(loss)
     y = torch.as_tensor(truth, dtype=torch.float32, device=x.device)
+    index = torch.as_tensor(held, dtype=torch.long, device=x.device)
     for start in range(0, num_layers, chunk):
         part = slice(start, min(num_layers, start + chunk))
-        for f, rows in enumerate(fold_rows):
-            cols = slice(f * scored, (f + 1) * scored)
-            index = torch.as_tensor(rows, dtype=torch.long, device=x.device)
-            z = torch.baddbmm(
-                b[part, None, cols].to(x.device),
-                x[part].index_select(1, index),
-                w[part, :, cols].to(x.device),
-            )
-            loss[part, f] = (F.softplus(z) - y[index] * z).mean(1).cpu().numpy()
-            counts = confusion_by_group((z > threshold_logit).cpu(), truth[rows], np.zeros(len(rows)), 1)
-            balanced[part, f] = metrics_from_counts(counts[0])["balanced_accuracy"]
+        z = torch.baddbmm(b[part, None].to(x.device), x[part].index_select(1, index), w[part].to(x.device))
+        loss[part] = (F.softplus(z) - y * z).mean(1).cpu().numpy()
+        counts = confusion_by_group((z > threshold_logit).cpu(), truth, np.zeros(len(truth)), 1)
+        balanced[part] = metrics_from_counts(counts[0])["balanced_accuracy"]
     return loss, balanced
 
 
@@ -152,13 +145,27 @@ def _group_mean(x: np.ndarray, scored_group: np.ndarray, ids: np.ndarray) -> np.
     return out
 
 
+Start = tuple[torch.Tensor, torch.Tensor]
+"""A solver start: weights (layers, hidden, columns) and biases (layers, columns), as ``fit_logistic``'s ``init``."""
+
+
 def choose_c(
-    x: torch.Tensor, y: torch.Tensor, rows: np.ndarray, groups: ColumnGroups, cfg: ProbeConfig, seed: int
-) -> tuple[CrossValidation | None, np.ndarray]:
+    x: torch.Tensor,
+    y: torch.Tensor,
+    rows: np.ndarray,
+    groups: ColumnGroups,
+    cfg: ProbeConfig,
+    seed: int,
+    *,
+    warm_start: bool = True,
+) -> tuple[CrossValidation | None, np.ndarray, Start | None]:
     """C per (layer, column) for training rows ``rows`` (features ``x`` (layers, rows, hidden), targets ``y``).
 
-    Returns the cross-validation record (None when no fold can be held out: then ``cfg.c_without_cv``) and
-    (layers, columns) C values.
+    Returns the cross-validation record (None when no fold can be held out: then ``cfg.c_without_cv``),
+    (layers, columns) C values and, with ``warm_start``, a start for the final fit of the scored columns: the
+    mean over the folds of their probes at the chosen C (else None). Each fold is fit on its own training rows;
+    with ``warm_start`` each C of the ascending grid starts from the fold's solution at the C before it, else
+    from the cold start (the same minimisers: ``warm_start=False`` is there to check and time that).
     """
     grid = sorted(float(c) for c in cfg.c_grid)
     num_layers = x.shape[0]
@@ -166,42 +173,60 @@ def choose_c(
     episodes = np.unique(groups.episode[rows])
     folds = search_folds(groups.episode_tasks[episodes], cfg.cv_folds, seed, groups.across_tasks)
     if not folds:
-        return None, np.full((num_layers, y.shape[1]), cfg.c_without_cv)
+        return None, np.full((num_layers, y.shape[1]), cfg.c_without_cv), None
     row_episode = np.searchsorted(episodes, groups.episode[rows])
     scored = np.flatnonzero(groups.scored)
     ys = y[:, scored]
-    in_fold = [np.isin(row_episode, f.train) for f in folds]
-    masks = [torch.as_tensor(m, dtype=torch.float32, device=x.device) for m in in_fold]
-    weight = torch.cat([m[:, None].expand(-1, len(scored)) for m in masks], 1)  # (rows, folds * scored)
-    targets = ys.repeat(1, len(folds))
     truth = ys.cpu().numpy() > 0.5
-    held_rows = [np.flatnonzero(~m) for m in in_fold]
     threshold_logit = math.log(cfg.threshold / (1 - cfg.threshold))
-    losses, scores, start = [], [], None
-    for c in grid:  # ascending: each C starts from the solution of the stronger penalty before it
-        l2 = np.concatenate([np.full(len(scored), l2_of_c(c, float(m.sum()))) for m in masks])
-        l2_t = torch.as_tensor(l2, dtype=torch.float32)[None].expand(num_layers, -1).contiguous()
-        w, b, _ = fit_logistic(
-            x,
-            targets,
-            l2_t,
-            weight=weight,
-            tol=cfg.tol,
-            max_iter=cfg.max_iter,
-            history=cfg.history,
-            memory_mb=cfg.memory_mb,
-            init=start,
-        )
-        start = (w, b)
-        loss, balanced = _held_out(x, truth, w, b, held_rows, threshold_logit)
-        losses.append(loss)
-        scores.append(balanced)
+    losses = np.empty((num_layers, len(grid), len(folds), len(scored)))
+    scores = np.empty_like(losses)
+    size = (num_layers, x.shape[2], len(scored))
+    path = [(torch.zeros(size), torch.zeros((num_layers, len(scored)))) for _ in grid] if warm_start else []
+    # (per C, the folds' solutions summed: the final fit's start)
+    for f, fold in enumerate(folds):
+        in_fold = np.isin(row_episode, fold.train)
+        fit_rows = torch.as_tensor(np.flatnonzero(in_fold), dtype=torch.long, device=x.device)
+        held = np.flatnonzero(~in_fold)
+        xf, yf = x.index_select(1, fit_rows), ys.index_select(0, fit_rows)  # the fold's rows only
+        start: Start | None = None
+        for j, c in enumerate(grid):  # ascending: each C starts from the solution of the stronger penalty
+            l2 = torch.full((num_layers, len(scored)), float(l2_of_c(c, len(fit_rows))))
+            w, b, _ = fit_logistic(
+                xf,
+                yf,
+                l2,
+                tol=cfg.tol,
+                max_iter=cfg.max_iter,
+                history=cfg.history,
+                memory_mb=cfg.memory_mb,
+                init=start,
+            )
+            losses[:, j, f], scores[:, j, f] = _held_out(x, held, truth[held], w, b, threshold_logit)
+            if warm_start:
+                start = (w, b)
+                path[j][0].add_(w)
+                path[j][1].add_(b)
+        del xf
     scored_group = groups.group[scored]
-    loss = _group_mean(np.stack(losses, 1), scored_group, ids)  # (layers, groups, grid)
-    score = _group_mean(np.stack(scores, 1), scored_group, ids)
+    loss = _group_mean(losses, scored_group, ids)  # (layers, groups, grid)
+    score = _group_mean(scores, scored_group, ids)
     chosen = select_c(score, grid, cfg.c_tolerance)
     per_column = chosen[:, np.searchsorted(ids, groups.group)]
     cv = CrossValidation(
         grid, len(folds), loss, chosen, ids, score, cfg.c_tolerance, tuple(episodes[f.test] for f in folds)
     )
-    return cv, per_column
+    return cv, per_column, _start_at(path, np.searchsorted(grid, per_column[:, scored]), len(folds))
+
+
+def _start_at(path: list[Start], at: np.ndarray, folds: int) -> Start | None:
+    """The mean fold solution at grid index ``at`` (layers, scored) of every (layer, column); None without a
+    path."""
+    if not path:
+        return None
+    w, b = torch.zeros_like(path[0][0]), torch.zeros_like(path[0][1])
+    for j, (wj, bj) in enumerate(path):
+        pick = torch.as_tensor(at == j)
+        w = torch.where(pick[:, None], wj, w)
+        b = torch.where(pick, bj, b)
+    return w / folds, b / folds

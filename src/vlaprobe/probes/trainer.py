@@ -22,7 +22,7 @@ import torch
 from vlaprobe.configs.train import ProbeConfig
 from vlaprobe.devices import resolve_device
 from vlaprobe.probes.apply import apply_probes_to_rows
-from vlaprobe.probes.lbfgs import Convergence, fit_logistic, l2_of_c
+from vlaprobe.probes.lbfgs import Convergence, cold_bias, fit_logistic, l2_of_c
 from vlaprobe.probes.regularization import ColumnGroups, CrossValidation, choose_c
 
 
@@ -99,6 +99,7 @@ def fit_probes(
     *,
     penalized: torch.Tensor | None = None,
     init: tuple[torch.Tensor, torch.Tensor] | None = None,
+    warm_start: bool = True,
 ) -> LinearProbes:
     """Fit one multi-label probe per layer on ``rows`` of ``hidden`` (layers, steps, hidden).
 
@@ -106,7 +107,8 @@ def fit_probes(
     (one value, or one per (layer, atom)), the single value of ``cfg.c_grid``, or chosen per layer and column
     group by cross-validation over the training episodes (needs ``groups``). Class balancing (``cfg.balance``)
     weights positives by the training negative/positive ratio. ``penalized`` and ``init``: as
-    :func:`~vlaprobe.probes.lbfgs.fit_logistic`'s.
+    :func:`~vlaprobe.probes.lbfgs.fit_logistic`'s; without ``init``, a searched C's final fit starts from the
+    search's solutions at that C (``warm_start``, see :func:`~vlaprobe.probes.regularization.choose_c`).
     """
     device = resolve_device(cfg.device)
     rows = np.sort(np.asarray(rows))
@@ -115,6 +117,10 @@ def fit_probes(
     x, mean, std = training_matrix(hidden, rows, device, cfg.standardize)
     y = torch.as_tensor(np.asarray(targets)[rows], dtype=torch.float32, device=device)
     num_layers, n = x.shape[0], x.shape[1]
+    weight = None
+    if cfg.balance:
+        freq = y.mean(0).clamp(1e-4, 1 - 1e-4)
+        weight = 1 + ((1 - freq) / freq - 1) * y
     cv = None
     if c is not None or len(cfg.c_grid) == 1:
         given = c if c is not None else cfg.c_grid[0]
@@ -122,11 +128,9 @@ def fit_probes(
     elif groups is None:
         raise ValueError("choosing C by cross-validation needs the rows' episodes (groups=)")
     else:
-        cv, per_column = choose_c(x, y, rows, groups, cfg, seed)
-    weight = None
-    if cfg.balance:
-        freq = y.mean(0).clamp(1e-4, 1 - 1e-4)
-        weight = 1 + ((1 - freq) / freq - 1) * y
+        cv, per_column, searched = choose_c(x, y, rows, groups, cfg, seed, warm_start=warm_start)
+        if init is None and searched is not None:
+            init = _final_start(searched, groups.scored, y, weight)
     l2 = torch.as_tensor(l2_of_c(per_column, n), dtype=torch.float32)
     w, b, conv = fit_logistic(
         x,
@@ -143,3 +147,19 @@ def fit_probes(
     if mean is not None and std is not None:  # on the CPU, as fit_logistic returns the weights
         mean, std = mean.cpu(), std.cpu()
     return LinearProbes(weight=w, bias=b, mean=mean, std=std, c=per_column, convergence=conv, cv=cv)
+
+
+def _final_start(
+    searched: tuple[torch.Tensor, torch.Tensor],
+    scored: np.ndarray,
+    y: torch.Tensor,
+    weight: torch.Tensor | None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The final fit's start: the search's (mean fold) solutions at the chosen C for the ``scored`` columns,
+    the cold start (w = 0, b = the log-odds) for the others (e.g. shuffled-label copies, not searched)."""
+    num_layers, hidden, _ = searched[0].shape
+    cols = torch.as_tensor(np.flatnonzero(scored))
+    w = torch.zeros((num_layers, hidden, y.shape[1]))
+    b = cold_bias(y, weight).cpu().expand(num_layers, -1).clone()
+    w[:, :, cols], b[:, cols] = searched
+    return w, b
