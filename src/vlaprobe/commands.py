@@ -47,6 +47,7 @@ COMMANDS: dict[str, Command] = {
     "hypotheses": Command("vlaprobe.configs.hypotheses:HypothesesConfig", "vlaprobe.probes.hypotheses_run:main", "H1/H2: best, earliest and steepest layer per head; object-action differences with bootstrap intervals."),
     "compare-splits": Command("vlaprobe.configs.hypotheses:CompareSplitsConfig", "vlaprobe.probes.cross_task:main", "Within-task vs leave-one-task-out probes of one store, predicate by predicate."),
     "cross-suite": Command("vlaprobe.configs.cross_suite:CrossSuiteConfig", "vlaprobe.probes.cross_suite:main", "Probes trained on one suite scored on another suite's store over the atoms both share."),
+    "reobserve": Command("vlaprobe.configs.stores:ReobserveConfig", "vlaprobe.collection.reobserve:main", "Another model's hidden states on a store's recorded episodes (same images and atoms): observers compared on the same episodes."),
     "compare-stores": Command("vlaprobe.configs.stores:CompareStoresConfig", "vlaprobe.probes.store_compare:main", "Stores side by side: task and task x time baselines, distinct states, atoms varying within episodes."),
     "report": Command("vlaprobe.configs.report:ReportConfig", "vlaprobe.pipeline:report_main", "Write the heatmap, curves and HTML page."),
     "cognition": Command("vlaprobe.configs.monitor:MonitorConfig", "vlaprobe.cognition.monitor:main", "The offline cognition evaluation: beliefs, rules, subgoals on stored episodes, truth vs probe predictions."),

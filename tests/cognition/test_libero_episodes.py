@@ -8,6 +8,7 @@ and lifts the arm), as collection's post_success_steps does.
 from __future__ import annotations
 
 import shutil
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -34,15 +35,22 @@ class Episode:
     success_step: int | None
 
 
-def expert_rows(env: Any, expert: Any, post: int, max_steps: int) -> tuple[list, int | None, bool]:
+def expert_rows(
+    env: Any, expert: Any, post: int, max_steps: int, each_row: Callable[[], object] | None = None
+) -> tuple[list, int | None, bool]:
     """The labeler's (object, action) rows of an expert episode from init 0, going on ``post`` steps after LIBERO's
-    success (at most ``max_steps``), the first row of success (None: none), and LIBERO's goal check at the end."""
+    success (at most ``max_steps``), the first row of success (None: none), and LIBERO's goal check at the end.
+    ``each_row`` is called on the live simulator after every row is labelled (to read LIBERO's own predicates)."""
     env.reset(0)
     expert.reset()
     rows, success_step, success = [env.labeler(env.world_state())], None, False
+    if each_row is not None:
+        each_row()
     while len(rows) <= max_steps and (success_step is None or len(rows) <= success_step + post):
         obs = env.step(expert.act())
         rows.append(env.labeler(env.world_state()))
+        if each_row is not None:
+            each_row()
         success = obs.success
         if success and success_step is None:
             success_step = len(rows) - 1

@@ -12,7 +12,7 @@ import os
 import time
 from dataclasses import dataclass
 from functools import partial
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -44,12 +44,15 @@ def success_step(task: int, init: int) -> int:
 
 
 class FakeEnv:
+    SCENES: ClassVar[dict[int, Scene]] = {}
+    """Task -> its scene where it is not :data:`SCENE` (a test gives tasks different objects)."""
+
     def __init__(self, task: int, cfg: Any) -> None:
         self.task_index = task
         self.instruction = f"put the bowl on the plate ({task})"
         self.num_init_states = NUM_INITS
-        self.scene, self.goal, self.goal_conjunction = SCENE, GOAL, GOAL_CONJUNCTION
-        self.labeler = Labeler(SCENE, GOAL)
+        self.scene, self.goal, self.goal_conjunction = self.SCENES.get(task, SCENE), GOAL, GOAL_CONJUNCTION
+        self.labeler = Labeler(self.scene, GOAL)
         self.delay = float(os.environ.get("FAKE_STEP_SECONDS", "0"))
 
     def reset(self, init: int) -> Observation:
@@ -78,14 +81,15 @@ class FakeEnv:
 
     def world_state(self) -> WorldState:
         rng = np.random.default_rng([self.task_index, self.init, self.t, 1])
-        pos = rng.uniform(-0.2, 0.2, (3, 3)) + np.array([0.0, 0.0, 0.9])
-        contact = rng.random((6, 6)) < 0.3
+        n, n_pick = len(self.scene.tabletop), len(self.scene.pickupable)  # 3 and 2 in SCENE
+        pos = rng.uniform(-0.2, 0.2, (n, 3)) + np.array([0.0, 0.0, 0.9])
+        contact = rng.random((n + 3, n + 3)) < 0.3  # the objects, the table, two fingers
         return WorldState(
             pos=pos,
             aabb_lo=pos - 0.03,
             aabb_hi=pos + 0.03,
             contact=contact | contact.T,
-            region_pos=pos[2:3],
+            region_pos=pos[n - 1 : n],
             region_mat=np.eye(3)[None],
             region_size=np.full((1, 3), 0.05),
             container_qpos=rng.uniform(-0.3, 0.0, 1),
@@ -99,9 +103,11 @@ class FakeEnv:
             table_height=0.9,
             # Drawn after the fields above, so that their values do not depend on these.
             gripper_qvel=np.zeros(2),
-            lin_vel=np.zeros((3, 3)),
-            ang_vel=np.zeros((3, 3)),
-            finger_gap=np.where((contact | contact.T)[:2, 4:6], 0.0, 0.01),  # the fingers' contacts
+            lin_vel=np.zeros((n, 3)),
+            ang_vel=np.zeros((n, 3)),
+            finger_gap=np.where(
+                (contact | contact.T)[:n_pick, n + 1 : n + 3], 0.0, 0.01
+            ),  # the fingers' contacts
         )
 
     def close(self) -> None:
@@ -174,8 +180,18 @@ def fake_tasks(cfg: Any) -> dict[int, str]:
     return {t: f"put the bowl on the plate ({t})" for t in range(NUM_TASKS)}
 
 
+def fake_scenes(cfg: Any, tasks: Any) -> list[Scene]:
+    """The scenes of ``tasks`` (what the real worker reads from the BDDL files)."""
+    return [FakeEnv.SCENES.get(t, SCENE) for t in tasks]
+
+
 make_fake_worker = partial(
-    Worker, make_env=FakeEnv, make_policy=FakePolicy, make_driver=fake_driver, list_tasks=fake_tasks
+    Worker,
+    make_env=FakeEnv,
+    make_policy=FakePolicy,
+    make_driver=fake_driver,
+    list_tasks=fake_tasks,
+    task_scenes=fake_scenes,
 )
 """A picklable worker factory (spawned processes and Ray actors import this module to rebuild it)."""
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from tests.collection.test_store import ATOMS, make_episode, make_meta, write
 
-from vlaprobe.collection.defined import ATTR, defined_attrs
+from vlaprobe.collection.defined import ATTR, TaskColumns, defined_attrs
 from vlaprobe.collection.store import ActivationStore
 from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.errors import VlaprobeError
@@ -54,3 +54,18 @@ def test_records_defined_says_whether_the_store_has_the_attribute(tmp_path: Path
         info, arrays = make_episode(0, 0, 2)
         w.write_episode(info, arrays, defined_attrs(ATOMS, {}))
     assert ActivationStore.open(tmp_path / "new").records_defined()
+
+
+def test_task_columns_widen_and_fold_in_the_labelers_undefined_atoms() -> None:
+    store = {"object": ["a", "b", "c"], "action": ["g(x)", "t(x)"]}
+    cols = TaskColumns.of(store, {"object": ["c", "a"], "action": ["g(x)", "t(x)"]}, {"action": ["t(x)"]})
+    assert cols.undefined == {"object": ["b"], "action": ["t(x)"]}
+    wide = cols.widen("object", np.array([[True, False], [False, True]]))
+    assert wide.tolist() == [[False, False, True], [True, False, False]]
+    same = np.array([[True, False]])
+    assert cols.widen("action", same) is same  # the store's columns: the array itself
+    attrs = cols.attrs(store)
+    assert attrs[ATTR]["undefined"] == {"object": ["b"], "action": ["t(x)"]}
+    assert TaskColumns.of(store, store).attrs(store) == {}  # all defined: no attribute
+    with pytest.raises(VlaprobeError, match="not in the store's vocabulary"):
+        TaskColumns.of(store, {"object": ["z"], "action": []})

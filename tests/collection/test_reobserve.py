@@ -73,3 +73,34 @@ def test_refusals(tmp_path: Path) -> None:
         reobserve(tmp_path / "a", tmp_path / "a", PolicyConfig(device="cpu"))
     with pytest.raises(VlaprobeError, match="action_tokens"):
         reobserve(tmp_path / "a", tmp_path / "c", PolicyConfig(device="cpu", pooling="action_tokens"))
+
+
+def test_command_copies_and_refuses_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from vlaprobe.cli import main
+
+    _source(tmp_path / "a")
+    assert (
+        main(
+            [
+                "reobserve",
+                str(tmp_path / "a"),
+                "--out",
+                str(tmp_path / "b"),
+                "--model",
+                "tiny",
+                "--device",
+                "cpu",
+            ]
+        )
+        == 0
+    )
+    assert "2 episodes observed by tiny (2 in the store)" in capsys.readouterr().out
+    assert ActivationStore.open(tmp_path / "b").model_id == make_policy(PolicyConfig(model="tiny")).model_id
+    for argv in (
+        ["reobserve", str(tmp_path / "nowhere"), "--out", str(tmp_path / "c")],
+        ["reobserve", str(tmp_path / "a"), "--out", str(tmp_path / "c"), "--batch", "0"],
+    ):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert not (tmp_path / "c").exists()

@@ -16,6 +16,7 @@ from tests.collection.fakes import (
     FakeEnv,
     FakePolicy,
     fake_driver,
+    fake_scenes,
     fake_tasks,
     make_fake_worker,
     serial_keys,
@@ -68,12 +69,17 @@ class CupEnv(FakeEnv):
         self.labeler = Labeler(self.scene, GOAL)
 
 
+def cup_scenes(cfg: Any, tasks: Any) -> list[Any]:
+    return [CupEnv(t, cfg).scene for t in tasks]
+
+
 def worker(**parts: Any) -> Any:
     pieces = {
         "make_env": FakeEnv,
         "make_policy": FakePolicy,
         "make_driver": fake_driver,
         "list_tasks": fake_tasks,
+        "task_scenes": fake_scenes,
         **parts,
     }
     return partial(Worker, **pieces)
@@ -104,7 +110,7 @@ CASES: dict[str, tuple[dict[str, Any], dict[str, Any], str, Any]] = {
         '--model: the model.revision is null in the store but "b"',
         worker(make_policy=RevisedPolicy),
     ),
-    "atom_names": ({}, {}, "the atom vocabulary.", worker(make_env=CupEnv)),
+    "atom_names": ({}, {}, "the atom vocabulary.", worker(make_env=CupEnv, task_scenes=cup_scenes)),
     "num_hidden_states": (
         {},
         {},

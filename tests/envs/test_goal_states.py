@@ -1,8 +1,9 @@
 """Issue 35 (b), (c) in the real simulator, one task per suite: at the settled init and along a goal state reached
 by placing the objects, our goal agrees with LIBERO's ``check_success`` and our atoms with LIBERO's own predicates
 on every row (``tests/envs/goal_states.py``). ``VLAPROBE_LIBERO_SWEEP=1`` (or ``python -m
-tests.envs.test_goal_states [SUITE ...] [--every N]``, which prints the counts per suite; ``episodes`` instead of
-suites: the episode sweep) runs every task of every suite."""
+tests.envs.test_goal_states [SUITE ...] [--every N | --tasks a,b]``, which prints the counts per suite; ``episodes``
+instead of suites: the episode sweep; ``expert SUITE --tasks a,b``: the expert's episode of each task) runs every
+task of every suite."""
 
 from __future__ import annotations
 
@@ -126,11 +127,40 @@ def episode_sweep(max_steps: int = 60) -> None:
                 )
 
 
+def expert_sweep(suite: SuiteName, tasks: list[int], max_steps: int = 600) -> None:
+    """The expert's episode (init 0) of each of ``tasks``, every row checked: the counts per task."""
+    from tests.collection.fakes import FakePolicy
+    from tests.envs.goal_states import episode_check
+
+    from vlaprobe.configs.policy import PolicyConfig
+
+    for task in tasks:
+        with LiberoTaskEnv(task, EnvConfig(suite=suite, image_size=64)) as env:
+            check = episode_check(env, "expert", FakePolicy(PolicyConfig()), max_steps=max_steps)  # type: ignore[arg-type]
+            print(
+                f"{suite} task {task} expert ({env.goal_conjunction}): {check.goal_rows} rows ({check.goal_reached} "
+                f"at LIBERO's goal), {len(check.goal_wrong)} goal disagreements; {check.atom_checks} atom checks, "
+                f"{sum(check.atom_wrong.values())} disagreements; ended at the goal: {bool(check.placed)}",
+                *check.goal_wrong,
+                *(f"{k}: {v} rows" for k, v in check.atom_wrong.items()),
+                sep="\n  ",
+                flush=True,
+            )
+
+
 if __name__ == "__main__":
-    if sys.argv[1:] == ["episodes"]:
+    args = sys.argv[1:]
+    picked = None
+    if "--tasks" in args:  # tasks a,b,c of each suite named
+        i = args.index("--tasks")
+        picked = [int(t) for t in args[i + 1].split(",")]
+        args = args[:i] + args[i + 2 :]
+    if args == ["episodes"]:
         episode_sweep()
-    elif "--every" in sys.argv:  # a sample: tasks 0, N, 2N, ... of each suite named
-        i = sys.argv.index("--every")
-        sweep(sys.argv[1:i] or list(SUITES), list(range(0, 90, int(sys.argv[i + 1]))))
+    elif args[:1] == ["expert"] and picked is not None:  # expert SUITE --tasks a,b: one expert episode each
+        expert_sweep(args[1], picked)  # type: ignore[arg-type]
+    elif "--every" in args:  # a sample: tasks 0, N, 2N, ... of each suite named
+        i = args.index("--every")
+        sweep(args[:i] or list(SUITES), list(range(0, 90, int(args[i + 1]))))
     else:
-        sweep(sys.argv[1:] or list(SUITES))
+        sweep(args or list(SUITES), picked)

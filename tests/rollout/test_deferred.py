@@ -9,7 +9,7 @@ from typing import ClassVar
 
 import numpy as np
 import pytest
-from tests.collection.fakes import FakeEnv, FakePolicy, FakeStep, fake_driver, fake_tasks
+from tests.collection.fakes import FakeEnv, FakePolicy, FakeStep, fake_driver, fake_scenes, fake_tasks
 from tests.collection.fingerprint import compare, store_fingerprint
 from tests.collection.test_collect import config
 
@@ -36,7 +36,12 @@ class BatchFakePolicy(FakePolicy):
 
 def _workers(policy: type) -> partial[Worker]:
     return partial(
-        Worker, make_env=FakeEnv, make_policy=policy, make_driver=fake_driver, list_tasks=fake_tasks
+        Worker,
+        make_env=FakeEnv,
+        make_policy=policy,
+        make_driver=fake_driver,
+        list_tasks=fake_tasks,
+        task_scenes=fake_scenes,
     )
 
 

@@ -8,6 +8,7 @@ atoms that are *not* defined (version 1). Episodes without it read as "all defin
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -65,3 +66,70 @@ def defined_rows(
         for a, n in zip(attrs, lengths, strict=True)
     ]
     return np.concatenate(rows) if rows else np.ones((0, width), dtype=bool)
+
+
+@dataclass(frozen=True)
+class TaskColumns:
+    """Where one task's label columns sit among a store's (the union vocabulary), and what the task leaves
+    undefined there: the store's atoms absent from the task's vocabulary, and the task's own atoms it cannot
+    label (``Labeler.undefined_action_atoms``: ``should-move-towards`` without a pick-and-place goal)."""
+
+    columns: dict[str, np.ndarray]
+    """Head -> int (task atoms,): the store column of each of the task's atoms."""
+    width: dict[str, int]
+    """Head -> the store's number of atoms."""
+    undefined: dict[str, list[str]]
+    """Head -> the store's atoms undefined in this task (store order)."""
+
+    @classmethod
+    def of(
+        cls,
+        store_atoms: Mapping[str, Sequence[str]],
+        task_atoms: Mapping[str, Sequence[str]],
+        task_undefined: Mapping[str, Sequence[str]] | None = None,
+    ) -> TaskColumns:
+        """The columns of ``task_atoms`` in ``store_atoms`` (every task atom must be a store atom)."""
+        columns, undefined = {}, {}
+        for head, names in store_atoms.items():
+            at = {a: i for i, a in enumerate(names)}
+            own = list(task_atoms[head])
+            missing = [a for a in own if a not in at]
+            if missing:
+                raise VlaprobeError(
+                    f"the task's {head} atoms {missing[:3]} are not in the store's vocabulary (the union of the "
+                    "selected tasks' scenes); collect this task into another store (--tasks, --out)"
+                )
+            columns[head] = np.array([at[a] for a in own], np.int64)
+            gone = set(names) - set(own) | set((task_undefined or {}).get(head, ()))
+            undefined[head] = [a for a in names if a in gone]
+        return cls(columns, {h: len(v) for h, v in store_atoms.items()}, undefined)
+
+    def widen(self, head: str, bits: np.ndarray) -> np.ndarray:
+        """bool (T, store atoms) of the task's (T, task atoms) labels; False in the columns the task lacks.
+        The task's own array, unchanged, where its columns are the store's."""
+        cols, width = self.columns[head], self.width[head]
+        if len(cols) == width and np.array_equal(cols, np.arange(width)):
+            return bits
+        out = np.zeros((len(bits), width), dtype=bool)
+        out[:, cols] = bits
+        return out
+
+    def attrs(self, atom_names: Mapping[str, Sequence[str]]) -> JsonObject:
+        """The episode's ``atoms_defined`` attribute (:func:`defined_attrs`); none when every atom is defined
+        (single-vocabulary stores, LIBERO-spatial's among them, keep their attributes)."""
+        if not any(self.undefined.values()):
+            return {}
+        return defined_attrs(atom_names, {h: v for h, v in self.undefined.items() if v})
+
+
+def undefined_counts(
+    attrs: Sequence[Mapping[str, Json]], atom_names: Mapping[str, Sequence[str]]
+) -> dict[str, tuple[int, int]]:
+    """Head -> (atoms undefined in some episode, episodes leaving some atom undefined), from the episodes'
+    attributes (``vlaprobe info``)."""
+    out = {}
+    for head, names in atom_names.items():
+        rows = [~read_defined(a, atom_names, head) for a in attrs]
+        undefined = np.stack(rows) if rows else np.zeros((0, len(names)), bool)
+        out[head] = (int(undefined.any(0).sum()), int(undefined.any(1).sum()))
+    return out

@@ -26,6 +26,7 @@ def summarize(path: str | Path) -> JsonObject:
         **store.summary(),
         "bytes": _bytes(Path(path)),
         "instructions": store.metadata.instructions,
+        "undefined": {h: {"atoms": a, "episodes": e} for h, (a, e) in store.undefined().items()},
     }
 
 
@@ -47,6 +48,9 @@ def info(cfg: InfoConfig) -> int:
         f"model     {s['model_id']}: {s['layers']} hidden states x {s['hidden_size']}, pooling {s['pooling']}"
     )
     print(f"driver    {s['driver']}; atoms: " + ", ".join(f"{n} {head}" for head, n in s["atoms"].items()))
+    if any(u["episodes"] for u in s["undefined"].values()):  # a union store: tasks with different objects
+        parts = [f"{head} {u['atoms']} atoms in {u['episodes']}" for head, u in s["undefined"].items()]
+        print(f"undefined {'; '.join(parts)} of {len(s['episodes'])} episodes (never scored)")
     print(
         f"episodes  {len(s['episodes'])} ({ok} successful), {s['steps']} steps; "
         f"{len(s['failures'])} failed tries recorded without data"

@@ -23,6 +23,7 @@ import numpy as np
 from vlaprobe.collection.store import ActivationStore, EpisodeInfo
 from vlaprobe.collection.writer import StoreWriter
 from vlaprobe.configs.policy import PolicyConfig
+from vlaprobe.configs.stores import ReobserveConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.files import JsonObject
 from vlaprobe.policies.base import VLAPolicy
@@ -96,3 +97,14 @@ def reobserve(source: str | Path, out: str | Path, cfg: PolicyConfig, batch: int
         run = {"command": shlex.join(sys.argv), "seconds": round(time.perf_counter() - start, 1)}
         writer.update_meta(runs=[*writer.meta.get("runs", []), {**run, "episodes_added": len(added)}])
     return added
+
+
+def main(cfg: ReobserveConfig) -> int:
+    """``vlaprobe reobserve``: copy the store with ``--model`` as the observer; print what was added."""
+    if cfg.batch < 1:
+        raise VlaprobeError(f"--batch must be at least 1, got {cfg.batch}")
+    out = cfg.out or Path(cfg.store).with_name(f"{Path(cfg.store).name}-{Path(cfg.policy.model).name}")
+    added = reobserve(cfg.store, out, cfg.policy, cfg.batch)
+    total = len(ActivationStore.open(out).episodes())
+    print(f"{out}: {len(added)} episodes observed by {cfg.policy.model} ({total} in the store)")
+    return 0

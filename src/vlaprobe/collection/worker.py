@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import hashlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from vlaprobe.collection.defined import TaskColumns
 from vlaprobe.collection.episode import EpisodeAttrs, EpisodeSteps, PerturbationMark, StepRows
 from vlaprobe.collection.plan import Unit
 from vlaprobe.collection.store import EpisodeInfo
@@ -39,6 +40,7 @@ from vlaprobe.rollout.faults import FaultSpec, FaultyExpert
 from vlaprobe.rollout.perturb import KIND_CODE, Perturber, PerturbSpec
 from vlaprobe.rollout.runner import MakeDriver, default_threads
 from vlaprobe.rollout.takeover import Supervisor, TakeoverDriver
+from vlaprobe.symbols import HEADS, Scene
 from vlaprobe.symbols.vocabulary import atom
 
 
@@ -97,17 +99,28 @@ def _suite_tasks(cfg: EnvConfig) -> dict[int, str]:
     return dict(suite_tasks(cfg.suite))
 
 
+def _task_scenes(cfg: EnvConfig, tasks: Sequence[int]) -> list[Scene]:
+    from vlaprobe.envs.bddl_scene import task_scene
+
+    return [task_scene(cfg.suite, t, cfg.assets) for t in tasks]
+
+
 MakeEnv = Callable[[int, EnvConfig], TaskEnv]
 MakePolicy = Callable[[PolicyConfig, SuiteName], VLAPolicy]
 ListTasks = Callable[[EnvConfig], dict[int, str]]
+TaskScenes = Callable[[EnvConfig, Sequence[int]], list[Scene]]
 
 
 class Worker:
     """Runs episodes: one model for the worker's life, one simulator at a time (rebuilt when the task changes).
 
     The factories default to the real pieces (:func:`vlaprobe.envs.make_env`,
-    :func:`vlaprobe.policies.make_policy`, :func:`vlaprobe.rollout.make_driver`); tests pass small fakes with
-    the same interfaces.
+    :func:`vlaprobe.policies.make_policy`, :func:`vlaprobe.rollout.make_driver`, the tasks' BDDL scenes); tests
+    pass small fakes with the same interfaces.
+
+    The store's vocabulary is the union of the selected tasks' scenes' (``envs.suite_vocabulary``): a task's
+    own where all agree (LIBERO-spatial, LIBERO-goal). Each episode's labels are widened to it, and an episode
+    whose task leaves atoms undefined records them (``collection.defined``).
     """
 
     def __init__(
@@ -118,10 +131,11 @@ class Worker:
         make_driver: MakeDriver = make_driver,
         list_tasks: ListTasks = _suite_tasks,
         make_supervisor: MakeSupervisor | None = None,
+        task_scenes: TaskScenes = _task_scenes,
     ) -> None:
         """``make_supervisor``: the cognition's alarm of an episode (``--takeover alarm`` needs it)."""
         self.cfg = cfg
-        self._list_tasks = list_tasks
+        self._list_tasks, self._task_scenes = list_tasks, task_scenes
         mode = cfg.intervention.takeover
         if mode == "alarm" and make_supervisor is None:
             raise VlaprobeError(
@@ -148,24 +162,31 @@ class Worker:
             else None
         )
         self.runner = EpisodeRunner(self._deferred or self.policy, envs, make_driver)
-        self._atoms: tuple[tuple[str, ...], tuple[str, ...]] = ((), ())
-        self._first_task = -1
+        self._atoms: dict[str, list[str]] | None = None
+        self._columns: dict[int, TaskColumns] = {}
 
     @property
     def env(self) -> TaskEnv | None:
         """The current task's simulator (None before the first episode and after :meth:`close`)."""
         return self.runner.envs.env
 
+    def store_atoms(self) -> dict[str, list[str]]:
+        """The store's atom names per head: the union vocabulary of the selected tasks (sorted) of the suite."""
+        if self._atoms is None:
+            from vlaprobe.envs.suite_vocabulary import union_vocabulary
+
+            tasks = sorted(self.cfg.tasks or self._list_tasks(self.cfg.env))
+            vocab = union_vocabulary(self._task_scenes(self.cfg.env, tasks))
+            self._atoms = {h: list(vocab.atoms(h)) for h in HEADS}
+        return self._atoms
+
     def _check_vocabulary(self, task: int, env: TaskEnv) -> None:
-        vocab = env.labeler.vocabulary
-        atoms = (tuple(vocab.object_atoms), tuple(vocab.action_atoms))
-        if self._first_task >= 0 and atoms != self._atoms:
-            raise VlaprobeError(
-                f"task {task} has another atom vocabulary than task {self._first_task}; "
-                "collect tasks with different scenes into separate stores (--tasks, --out)"
-            )
-        if self._first_task < 0:
-            self._atoms, self._first_task = atoms, task
+        """Place the task's atoms among the store's (a task atom outside the union is an error)."""
+        labeler = env.labeler
+        own = {h: labeler.vocabulary.atoms(h) for h in HEADS}
+        self._columns[task] = TaskColumns.of(
+            self.store_atoms(), own, {"action": labeler.undefined_action_atoms}
+        )
 
     def _env_for(self, task: int) -> TaskEnv:
         return self.runner.envs.get(task)
@@ -182,7 +203,7 @@ class Worker:
             num_hidden_states=int(p.num_hidden_states),
             hidden_size=int(p.hidden_size),
             pooling=str(p.pooling),
-            atom_names={"object": list(self._atoms[0]), "action": list(self._atoms[1])},
+            atom_names=self.store_atoms(),
             tasks={int(k): str(v) for k, v in tasks.items()},
             num_init_states=int(env.num_init_states),
         )
@@ -239,7 +260,11 @@ class Worker:
             success_step=track.success_step,
         )
         steps = rows.steps(track.codes if perturber is not None else None)
+        columns = self._columns[unit.task]
+        steps.object_atoms = columns.widen("object", steps.object_atoms)
+        steps.action_atoms = columns.widen("action", steps.action_atoms)
         attrs = _episode_attrs(env, perturber, round(seconds, 3))
+        attrs.extra.update(columns.attrs(self.store_atoms()))
         if isinstance(faulty := self.runner.driver, FaultyExpert):
             attrs.faults, attrs.failure_step = list(faulty.marks), faulty.failure_step
         if isinstance(taking := self.runner.driver, TakeoverDriver):

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
 import tyro
+
+from vlaprobe.configs.policy import PolicyConfig
 
 
 @dataclass
@@ -35,3 +38,20 @@ class CompareStoresConfig:
     """Only successful episodes (as ``vlaprobe train --split.success-only``)."""
     json: bool = False
     """Print the comparison as JSON instead of the table."""
+
+
+@dataclass
+class ReobserveConfig:
+    """Show every episode of a store (its stored images, atoms, actions) to another model and write that model's
+    hidden states into a new store: two observers compared on exactly the same episodes, one simulation."""
+
+    store: Annotated[Path, tyro.conf.Positional] = Path("runs/default/activations")
+    """The source activation store (collected with its images, as ``vlaprobe collect`` keeps them)."""
+    out: Path | None = None
+    """The new store (default: ``<source>-<model>`` beside the source, the model's folder name for a path); a rerun resumes it (episodes already copied are kept)."""
+    policy: Annotated[PolicyConfig, tyro.conf.OmitArgPrefixes] = dataclasses.field(
+        default_factory=PolicyConfig
+    )
+    """The observer: ``--model`` as ``vlaprobe collect --model`` (a name, a checkpoint folder or a hub id)."""
+    batch: int = 16
+    """Images per batched prompt pass."""

@@ -102,9 +102,14 @@ def defined_mask(atoms: Sequence[str], scene: Scene) -> np.ndarray:
     return np.array([set(parse_atom(a)[1]) <= names for a in atoms], dtype=bool)
 
 
+def union_vocabulary(scenes: Sequence[Scene]) -> Vocabulary:
+    """The vocabulary of :func:`union_scene` (a scene's own when every scene is the same: LIBERO-spatial's)."""
+    return build_vocabulary(union_scene(scenes))
+
+
 def vocabulary_of(suite: str, scenes: Sequence[Scene]) -> SuiteVocabulary:
     """The union vocabulary of ``scenes`` (one per task) and each task's defined mask."""
-    vocab = build_vocabulary(union_scene(scenes))
+    vocab = union_vocabulary(scenes)
     return SuiteVocabulary(
         suite=suite,
         vocabulary=vocab,

@@ -88,6 +88,7 @@ def conditional_fit(
     fold_rows: list[tuple[np.ndarray, np.ndarray]],
     cfg: TrainConfig,
     fold_probes: list[LinearProbes],
+    defined: np.ndarray | None = None,
 ) -> dict[str, ConditionalFit]:
     """Fit and score the conditional probes of every baseline on each fold.
 
@@ -96,6 +97,7 @@ def conditional_fit(
     leaves the one-hot block unpenalised, as the features-only probe is: on a hidden state that adds nothing
     the two probes then coincide (gain 0), whatever C the probes needed. It starts from the fold's probe
     (hidden-state weights and bias; the one-hot weights at 0): the same minimiser, fewer iterations.
+    ``defined`` (steps, atoms) bool, when given: both probes leave the undefined entries out (weight 0).
     """
     eval_rows = np.sort(np.concatenate([te for _, te in fold_rows]))
     probe_cfg = dataclasses.replace(cfg.probe, standardize=False)  # standardised here, one-hot kept 0/1
@@ -110,13 +112,23 @@ def conditional_fit(
         c = np.zeros((layers, k))
         for (train_rows, test_rows), probes in zip(fold_rows, fold_probes, strict=True):
             at = np.searchsorted(eval_rows, test_rows)
-            base = fit_probes(onehot[None], targets, train_rows, probe_cfg, 0, c=1.0, penalized=free)
+            base = fit_probes(
+                onehot[None], targets, train_rows, probe_cfg, 0, c=1.0, penalized=free, defined=defined
+            )
             features[:, at] = base.logits(onehot[None], test_rows)
             assert probes.c is not None
             x = combined_features(hidden, train_rows, onehot)
             init = (torch.cat([probes.weight, torch.zeros((layers, cells, k))], 1), probes.bias)
             full = fit_probes(
-                x, targets, train_rows, probe_cfg, 0, c=probes.c, penalized=penalized, init=init
+                x,
+                targets,
+                train_rows,
+                probe_cfg,
+                0,
+                c=probes.c,
+                penalized=penalized,
+                init=init,
+                defined=defined,
             )
             combined[:, at] = full.logits(x, test_rows)
             c = probes.c
@@ -133,14 +145,16 @@ def evaluate_conditional(
     threshold_logit: float,
     weights: np.ndarray,
     atom_groups: list[np.ndarray],
+    defined: np.ndarray | None = None,
 ) -> ConditionalProbe:
     """Balanced accuracy of one head's conditional probes (columns ``cols``; ``truth`` (rows, those atoms)),
-    its intervals and the paired gain over the features-only probe, from the resamples ``weights``."""
+    its intervals and the paired gain over the features-only probe, from the resamples ``weights``; ``defined``
+    (rows, those atoms) leaves the undefined entries out."""
     metric = CONDITIONAL_METRIC
 
     def scored(logits: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
         point, res = atom_metrics(
-            logits[:, :, cols], truth, row_groups, num_groups, threshold_logit, weights, 0
+            logits[:, :, cols], truth, row_groups, num_groups, threshold_logit, weights, 0, defined
         )
         return point[metric], res[metric]
 

@@ -82,6 +82,19 @@ class ProbeData:
         """bool (steps, atoms): which entries of ``labels[head]`` are defined (all, for single-vocabulary stores)."""
         return self.defined.get(head, np.ones_like(self.labels[head], dtype=bool))
 
+    def partly_defined(self, head: str) -> np.ndarray | None:
+        """:meth:`defined_mask`, or None where every entry is defined (the figures are then computed exactly as
+        without a mask)."""
+        mask = self.defined_mask(head)
+        return None if mask.all() else mask
+
+    def targets_defined(self, kept: dict[str, np.ndarray]) -> np.ndarray | None:
+        """bool (steps, columns) aligned with the targets ``labels[h][:, kept[h]]`` of each head in turn (None:
+        all defined)."""
+        if all(self.partly_defined(h) is None for h in kept):
+            return None
+        return np.concatenate([self.defined_mask(h)[:, cols] for h, cols in kept.items()], axis=1)
+
     @property
     def heads(self) -> list[str]:
         return list(self.labels)

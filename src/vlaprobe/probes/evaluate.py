@@ -31,7 +31,7 @@ from vlaprobe.probes.results import (
     nested,
     number,
 )
-from vlaprobe.probes.split import LabelFilter
+from vlaprobe.probes.split import LabelFilter, defined_frequency
 from vlaprobe.probes.ties import TIE_RULE, layer_resamples, tie_set
 from vlaprobe.probes.trainer import LinearProbes, fit_probes
 
@@ -64,6 +64,9 @@ class CrossFit:
     conditional: dict[str, ConditionalFit] = field(default_factory=dict)
     """Baseline name -> its conditional probes' held-out logits (:mod:`vlaprobe.probes.conditional`), when
     computed."""
+    defined: np.ndarray | None = None
+    """bool (rows, atoms): which held-out entries are defined (union stores; None: all). Every score leaves
+    the others out."""
 
     @property
     def num_groups(self) -> int:
@@ -78,13 +81,16 @@ def cross_fit(
     seeds: dict[str, int],
     permutations: int,
     column_head: np.ndarray,
+    defined: np.ndarray | None = None,
 ) -> CrossFit:
     """Train on each fold's training rows, score its test rows; pool the scores over folds.
 
     Each of ``permutations`` shuffled-label controls permutes the training labels across steps (whole label
     rows, so the atoms' co-occurrence is kept) and adds a block of columns to the same matmuls: it costs
     only wider weights. ``column_head`` (atoms,) says which head each target column belongs to: a head's
-    atoms (and their shuffled copies) share one L2 strength per layer.
+    atoms (and their shuffled copies) share one L2 strength per layer. ``defined`` (steps, atoms) bool like
+    ``targets``, when given: the undefined entries are left out of every fit, baseline and score (a shuffled
+    row carries its own mask along).
     """
     rng = np.random.default_rng(seeds["shuffle"])
     k = targets.shape[1]
@@ -97,12 +103,24 @@ def cross_fit(
     groups = column_groups(data, column_head, permutations, cfg.split.by == "leave-one-task-out")
     for i, (train_rows, test_rows) in enumerate(fold_rows):
         blocks = [targets]
+        masks = [] if defined is None else [defined]
         for _ in range(permutations):
+            order = rng.permutation(train_rows)
             shuffled = np.zeros_like(targets)
-            shuffled[train_rows] = targets[rng.permutation(train_rows)]
+            shuffled[train_rows] = targets[order]
             blocks.append(shuffled)
+            if defined is not None:
+                mask = np.zeros_like(defined)
+                mask[train_rows] = defined[order]
+                masks.append(mask)
         fitted = fit_probes(
-            data.hidden, np.concatenate(blocks, axis=1), train_rows, cfg.probe, seeds["probe"] + i, groups
+            data.hidden,
+            np.concatenate(blocks, axis=1),
+            train_rows,
+            cfg.probe,
+            seeds["probe"] + i,
+            groups,
+            defined=np.concatenate(masks, axis=1) if masks else None,
         )
         scores = fitted.logits(data.hidden, test_rows)
         at = np.searchsorted(eval_rows, test_rows)
@@ -110,10 +128,13 @@ def cross_fit(
         if control is not None:
             for p in range(permutations):
                 control[p][:, at] = scores[:, :, k * (p + 1) : k * (p + 2)]
-        predicted = predict_baselines(targets, data.episode, data.episode_tasks, train_rows, test_rows)
+        predicted = predict_baselines(
+            targets, data.episode, data.episode_tasks, train_rows, test_rows, defined=defined
+        )
         for name in BASELINES:
             baselines[name][at] = predicted[name]
-        train_frequency += targets[train_rows].mean(0) / len(fold_rows)
+        train_mask = None if defined is None else defined[train_rows]
+        train_frequency += defined_frequency(targets[train_rows], train_mask) / len(fold_rows)
         fold_probes.append(fitted.columns(slice(0, k)))
     episodes, groups = np.unique(data.episode[eval_rows], return_inverse=True)
     return CrossFit(
@@ -127,6 +148,7 @@ def cross_fit(
         fold_probes,
         train_frequency,
         np.asarray(column_head),
+        defined=None if defined is None else defined[eval_rows],
     )
 
 
@@ -243,11 +265,12 @@ def evaluate_head(
     preds = predicate_order(atoms)
     groups = [np.array([i for i, a in enumerate(atoms) if predicate(a) == p]) for p in preds]
     truth = targets[fitted.rows][:, cols]
+    held = None if fitted.defined is None else fitted.defined[:, cols]
     count_weights = weights[: cfg.bootstrap]
 
     def run(logits: torch.Tensor, auprc_resamples: int) -> tuple[dict, dict]:
         point, res = atom_metrics(
-            logits, truth, fitted.groups, fitted.num_groups, threshold_logit, weights, auprc_resamples
+            logits, truth, fitted.groups, fitted.num_groups, threshold_logit, weights, auprc_resamples, held
         )
         for m in COUNT_METRICS:
             res[m] = res[m][: len(count_weights)]
@@ -274,7 +297,7 @@ def evaluate_head(
         ),
         dropped=[DroppedAtom(**d) for d in filt.dropped],
         train_frequency=nested(fitted.train_frequency[cols]),
-        test_frequency=nested(truth.mean(0)),
+        test_frequency=nested(defined_frequency(truth, held)),
         best=BestLayer(0, 0, "", None, None, None, ""),
         probe=probe,
         baseline={m: _summary(b_point[m], b_res[m], groups) for m in METRICS},
@@ -306,7 +329,7 @@ def evaluate_head(
     result.fit = probe_fit(fitted, cols, cfg)
     conditional = {
         name: evaluate_conditional(
-            cf, cols, truth, fitted.groups, fitted.num_groups, threshold_logit, count_weights, groups
+            cf, cols, truth, fitted.groups, fitted.num_groups, threshold_logit, count_weights, groups, held
         )
         for name, cf in fitted.conditional.items()
     }

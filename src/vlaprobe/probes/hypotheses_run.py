@@ -104,7 +104,10 @@ def run_curves(
             rows,
         )
         preds = logits > cut  # the rule of evaluation.json's figures
-        counts[head] = confusion_by_group(preds, labels, episode, len(test))
+        defined = data.defined_mask(head)[rows][:, cols]  # union stores: undefined entries count nowhere
+        counts[head] = confusion_by_group(
+            preds, labels, episode, len(test), None if defined.all() else defined
+        )
     return curves_from_counts(counts, ps.layers, bootstrap_weights(len(test), resamples, seed))
 
 

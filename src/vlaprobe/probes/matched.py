@@ -44,6 +44,7 @@ def pair_counts(
     groups: np.ndarray,
     num_groups: int,
     budget: int = 4_000_000,
+    defined: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Correctly ranked pairs (layers, atoms, G, G) and all pairs (atoms, G, G), per (positive step's group,
     negative step's group), summed over cells.
@@ -51,30 +52,33 @@ def pair_counts(
     ``scores`` (layers, rows, atoms), ``truth`` bool (rows, atoms), ``cells`` and ``groups`` int (rows,).
     A pair is two rows of one cell, the atom true at the first and false at the second; it is ranked
     correctly when the first scores higher (a tie counts 1/2). Atoms are taken in chunks of at most ``budget``
-    (layers x rows x rows) entries per cell."""
+    (layers x rows x rows) entries per cell. ``defined`` (rows, atoms) bool, when given: an undefined entry is
+    in no pair."""
     scores = torch.as_tensor(scores)
     truth = np.asarray(truth, bool)
+    known = np.ones_like(truth) if defined is None else np.asarray(defined, bool)
+    positive, negative = truth & known, ~truth & known
     layers, atoms = scores.shape[0], truth.shape[1]
     correct = np.zeros((layers, atoms, num_groups, num_groups))
     pairs = np.zeros((atoms, num_groups, num_groups))
     for cell in np.unique(cells):
         rows = np.flatnonzero(cells == cell)
-        y = truth[rows]
-        vary = np.flatnonzero(y.any(0) & ~y.all(0))
+        y, n = positive[rows], negative[rows]
+        vary = np.flatnonzero(y.any(0) & n.any(0))
         if not len(vary):
             continue
         onehot = np.eye(num_groups)[np.asarray(groups)[rows]]  # (n, G)
-        pairs[vary] += np.einsum("ga,ha->agh", onehot.T @ y[:, vary], onehot.T @ ~y[:, vary])
+        pairs[vary] += np.einsum("ga,ha->agh", onehot.T @ y[:, vary], onehot.T @ n[:, vary])
         e = torch.as_tensor(onehot)
         s = scores[:, torch.as_tensor(rows)]
         step = max(1, budget // (layers * len(rows) ** 2))
         for start in range(0, len(vary), step):
             chunk = vary[start : start + step]
             sc = s[:, :, torch.as_tensor(chunk)].double()
-            yc = torch.as_tensor(y[:, chunk])
+            yc, nc = torch.as_tensor(y[:, chunk]), torch.as_tensor(n[:, chunk])
             diff = sc[:, :, None, :] - sc[:, None, :, :]  # (layers, i, j, chunk): score of i minus j
             win = (diff > 0).double() + 0.5 * (diff == 0).double()
-            win *= (yc[:, None, :] & ~yc[None, :, :]).double()  # i true, j false
+            win *= (yc[:, None, :] & nc[None, :, :]).double()  # i true, j false
             correct[:, chunk] += torch.einsum("lijc,ig,jh->lcgh", win, e, e).numpy()
     return correct, pairs
 
@@ -111,7 +115,8 @@ class Scored:
         f = self.fitted
         cells = task_time_cell(self.data.episode, self.data.episode_tasks)[f.rows]
         truth = self.targets[f.rows][:, cols]
-        correct, pairs = pair_counts(f.logits[:, :, cols], truth, cells, f.groups, f.num_groups)
+        held = None if f.defined is None else f.defined[:, cols]
+        correct, pairs = pair_counts(f.logits[:, :, cols], truth, cells, f.groups, f.num_groups, defined=held)
         return (*matched_auc(correct, pairs, self.weights), pairs.sum((1, 2)))
 
 
@@ -131,10 +136,11 @@ def conditional_family_gain(
     :func:`~vlaprobe.probes.conditional.conditional_fit`."""
     f = main.fitted
     truth = main.targets[f.rows][:, cols]
+    held = None if f.defined is None else f.defined[:, cols]
 
     def scored(logits: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
         point, res = atom_metrics(
-            logits[:, :, cols], truth, f.groups, f.num_groups, threshold_logit, main.weights, 0
+            logits[:, :, cols], truth, f.groups, f.num_groups, threshold_logit, main.weights, 0, held
         )
         return point[CONDITIONAL_METRIC], res[CONDITIONAL_METRIC]
 

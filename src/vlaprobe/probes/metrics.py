@@ -184,24 +184,32 @@ def atom_metrics(
     threshold_logit: float,
     weights: np.ndarray,
     auprc_resamples: int,
+    defined: np.ndarray | None = None,
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Point values (layers, atoms) and bootstrap resamples (resamples, layers, atoms) of every metric.
 
     Predictions are ``logits > threshold_logit``; AUPRC ranks the logits. AUPRC resamples are the first
-    ``auprc_resamples`` rows of ``weights`` (an empty array when 0).
+    ``auprc_resamples`` rows of ``weights`` (an empty array when 0). ``defined`` (rows, atoms) bool, when
+    given, leaves out the undefined entries from every metric (for AUPRC they rank below every scored row, as
+    negatives: they enter no precision).
     """
-    counts = confusion_by_group(logits > threshold_logit, truth, groups, num_groups)
+    counts = confusion_by_group(logits > threshold_logit, truth, groups, num_groups, defined)
     point, resampled = count_metrics(counts, weights)
     layers, _, atoms = logits.shape
+    truth = np.asarray(truth, bool)
+    if defined is not None:
+        mask = torch.as_tensor(np.asarray(defined, bool))
+        logits = torch.where(mask[None], logits.double(), -torch.inf)
+        truth = truth & defined
     columns = logits.permute(1, 0, 2).reshape(logits.shape[1], layers * atoms)
-    truth_cols = torch.as_tensor(np.asarray(truth, bool)).repeat(1, layers)
+    truth_cols = torch.as_tensor(truth).repeat(1, layers)
     point["auprc"] = average_precision(columns, truth_cols).reshape(layers, atoms).numpy()
     group_weights = weights[:auprc_resamples]
     resampled["auprc"] = np.empty((len(group_weights), layers, atoms))
     if len(group_weights):
         for a in range(atoms):  # one atom at every layer: the same positives
             resampled["auprc"][:, :, a] = resampled_average_precision(
-                logits[:, :, a].T, np.asarray(truth)[:, a], groups, group_weights
+                logits[:, :, a].T, truth[:, a], groups, group_weights
             )
     return point, resampled
 

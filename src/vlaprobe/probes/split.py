@@ -131,6 +131,10 @@ def check_no_leak(episode: np.ndarray, train_rows: np.ndarray, test_rows: np.nda
         raise AssertionError(f"train/test leak: episodes {shared.tolist()[:10]} have steps on both sides")
 
 
+UNDEFINED = "undefined"
+"""How the reason of an atom dropped for being undefined (no row defines it) begins."""
+
+
 @dataclass(frozen=True)
 class LabelFilter:
     """Which atoms of a head are probed and why the others are not."""
@@ -142,19 +146,43 @@ class LabelFilter:
 
 
 def filter_labels(
-    train_labels: list[np.ndarray] | np.ndarray, names: list[str], min_frequency: float, max_frequency: float
+    train_labels: list[np.ndarray] | np.ndarray,
+    names: list[str],
+    min_frequency: float,
+    max_frequency: float,
+    defined: list[np.ndarray] | np.ndarray | None = None,
+    test_defined: np.ndarray | None = None,
 ) -> LabelFilter:
     """Drop atoms whose frequency in the training split is below ``min_frequency`` or above ``max_frequency``.
 
     Given several training splits (k-fold), an atom is dropped when any split would drop it, so all folds
-    probe the same atoms; the recorded frequency is the offending one.
+    probe the same atoms; the recorded frequency is the offending one. ``defined`` (parallel to
+    ``train_labels``, bool like each) counts a frequency over the rows that define the atom, and drops an atom
+    no row of a split defines (an object absent from every training task); ``test_defined`` (held-out rows,
+    atoms) drops an atom no held-out row defines: neither can be fit or scored.
     """
     splits = [train_labels] if isinstance(train_labels, np.ndarray) else list(train_labels)
-    freqs = np.stack([y.mean(axis=0) for y in splits])  # (splits, atoms)
-    low, high = freqs.min(axis=0), freqs.max(axis=0)
+    masks = (
+        [None] * len(splits)
+        if defined is None
+        else ([defined] if isinstance(defined, np.ndarray) else list(defined))
+    )
+    freqs = np.stack([defined_frequency(y, m) for y, m in zip(splits, masks, strict=True)])  # (splits, atoms)
+    undefined = np.isnan(freqs).any(axis=0)
+    unscored = (
+        np.zeros(len(names), bool)
+        if test_defined is None
+        else ~np.any(np.asarray(test_defined, bool), axis=0)
+    )
+    # (a split that does not define an atom drops it below, whatever its placeholder frequency)
+    known = np.where(np.isnan(freqs), 0.5, freqs)
+    low, high = known.min(axis=0), known.max(axis=0)
     kept, dropped = [], []
     for j, name in enumerate(names):
-        if low[j] < min_frequency:
+        if undefined[j] or unscored[j]:
+            where = "training split" if undefined[j] else "held-out step"
+            dropped.append({"atom": name, "train_frequency": 0.0, "reason": f"{UNDEFINED} in every {where}"})
+        elif low[j] < min_frequency:
             dropped.append(
                 {
                     "atom": name,
@@ -173,3 +201,13 @@ def filter_labels(
         else:
             kept.append(j)
     return LabelFilter(kept=np.array(kept, np.int64), dropped=dropped)
+
+
+def defined_frequency(labels: np.ndarray, defined: np.ndarray | None) -> np.ndarray:
+    """(atoms,) share of true rows among the rows defining each atom (all rows without ``defined``); NaN where
+    no row defines it."""
+    if defined is None:
+        return labels.mean(axis=0)
+    n = defined.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, (labels & defined).sum(axis=0) / n, np.nan)

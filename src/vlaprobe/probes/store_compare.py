@@ -112,16 +112,21 @@ def baseline_scores(
     train_episodes: np.ndarray,
     test_episodes: np.ndarray,
     weights: np.ndarray,
+    defined: np.ndarray | None = None,
 ) -> dict[str, tuple[float, np.ndarray]]:
     """Per baseline: (mean balanced accuracy over the atoms defined on the test set, its value in each resample
-    of ``weights`` (resamples, test episodes)). ``labels`` are the kept atoms' (rows, atoms) bools."""
+    of ``weights`` (resamples, test episodes)). ``labels`` are the kept atoms' (rows, atoms) bools; ``defined``
+    (same shape, union stores) leaves the undefined entries out of the fits and the scores."""
     train, test = rows_of(episode, train_episodes), rows_of(episode, test_episodes)
-    pred = predict_baselines(labels, episode, episode_tasks, train, test)
+    pred = predict_baselines(labels, episode, episode_tasks, train, test, defined=defined)
+    held = None if defined is None else defined[test]
     group = np.searchsorted(test_episodes, episode[test])
     out = {}
     for name in BASELINES:
         logits = torch.from_numpy(np.where(pred[name], 1.0, -1.0)[None])  # the probes' scoring, at logit 0
-        points, resamples = atom_metrics(logits, labels[test], group, len(test_episodes), 0.0, weights, 0)
+        points, resamples = atom_metrics(
+            logits, labels[test], group, len(test_episodes), 0.0, weights, 0, held
+        )
         value, per_resample = layer_means(points["balanced_accuracy"], resamples["balanced_accuracy"])
         out[name] = (float(value[0]), per_resample[:, 0])
     return out
@@ -161,10 +166,18 @@ def _store_scores(path: Path, cfg: CompareStoresConfig) -> tuple[dict[str, Any],
     for head in HEADS:
         names = list(store.atom_names[head])
         labels = np.asarray(store.labels(head, keys), bool)
+        mask = store.defined(head, keys) if store.records_defined(keys) else None
+        train, test = rows_of(episode, fold.train), rows_of(episode, fold.test)
         kept = filter_labels(
-            labels[rows_of(episode, fold.train)], names, cfg.min_frequency, cfg.max_frequency
+            labels[train],
+            names,
+            cfg.min_frequency,
+            cfg.max_frequency,
+            None if mask is None else mask[train],
+            None if mask is None else mask[test],
         ).kept
-        scores = baseline_scores(labels[:, kept], episode, tasks, fold.train, fold.test, weights)
+        held = None if mask is None else mask[:, kept]
+        scores = baseline_scores(labels[:, kept], episode, tasks, fold.train, fold.test, weights, held)
         resamples[head] = {b: r for b, (_, r) in scores.items()}
         d = diversity.heads[head]
         heads[head] = {

@@ -46,7 +46,15 @@ from vlaprobe.probes.results import (
     read_evaluation,
     write_evaluation,
 )
-from vlaprobe.probes.split import Fold, LabelFilter, check_no_leak, filter_labels, make_folds, rows_of
+from vlaprobe.probes.split import (
+    UNDEFINED,
+    Fold,
+    LabelFilter,
+    check_no_leak,
+    filter_labels,
+    make_folds,
+    rows_of,
+)
 from vlaprobe.probes.ties import describe
 from vlaprobe.probes.trainer import LinearProbes, fit_probes
 
@@ -88,8 +96,10 @@ def main(cfg: TrainConfig) -> int:
     for head, h in read_evaluation(out).heads.items():
         best = h.best
         value = "undefined" if best.value is None else f"{best.value:.3f}"
+        undefined = sum(d.reason.startswith(UNDEFINED) for d in h.dropped)
+        note = f", {undefined} dropped as undefined (objects absent from the tasks)" if undefined else ""
         print(
-            f"{head}: {len(h.atoms)} atoms probed, {describe(best.layer, best.tied)} ({best.metric} {value})"
+            f"{head}: {len(h.atoms)} atoms probed{note}, {describe(best.layer, best.tied)} ({best.metric} {value})"
         )
     print(f"probes and evaluation written to {out}")
     return 0
@@ -111,8 +121,9 @@ def train_on_data(
     heads, filters, skipped_heads = _filter_atoms(data, cfg, heads, fold_rows)  # 2. atoms that vary
     columns = _columns(heads, filters)
     targets = np.concatenate([data.labels[h][:, filters[h].kept] for h in heads], axis=1)
+    defined = data.targets_defined({h: filters[h].kept for h in heads})  # None: all defined
     column_head = np.concatenate([np.full(len(filters[h].kept), i) for i, h in enumerate(heads)])
-    fitted, probes = _fit(data, cfg, seeds, targets, fold_rows, column_head)  # 3. probes and controls
+    fitted, probes = _fit(data, cfg, seeds, targets, fold_rows, column_head, defined)  # 3. probes, controls
     trained = time.perf_counter()
     if cfg.conditional:  # 3b. what the hidden states add beyond task and time
         log.info("conditional probing over the task and task x time baselines")
@@ -124,6 +135,7 @@ def train_on_data(
             fold_rows,
             cfg,
             fitted.fold_probes,
+            defined,
         )
     conditioned = time.perf_counter()
     # 4. Evaluate everything on the same bootstrap resamples of test episodes.
@@ -177,16 +189,20 @@ def _split_rows(
 def _filter_atoms(
     data: ProbeData, cfg: TrainConfig, heads: list[str], fold_rows: list[tuple[np.ndarray, np.ndarray]]
 ) -> tuple[list[str], dict[str, LabelFilter], dict[str, str]]:
-    """Keep the atoms that vary in every training split; heads left without atoms are skipped."""
-    filters = {
-        h: filter_labels(
+    """Keep the atoms that vary in every training split (among the rows defining them) and that some held-out
+    row defines; heads left without atoms are skipped."""
+    held = np.concatenate([te for _, te in fold_rows])
+    filters = {}
+    for h in heads:
+        mask = data.partly_defined(h)
+        filters[h] = filter_labels(
             [data.labels[h][tr] for tr, _ in fold_rows],
             data.atom_names[h],
             cfg.min_frequency,
             cfg.max_frequency,
+            None if mask is None else [mask[tr] for tr, _ in fold_rows],
+            None if mask is None else mask[held],
         )
-        for h in heads
-    }
     skipped = {h: f"all {len(filters[h].dropped)} atoms dropped" for h in heads if not len(filters[h].kept)}
     heads = [h for h in heads if h not in skipped]
     if not heads:
@@ -204,6 +220,7 @@ def _fit(
     targets: np.ndarray,
     fold_rows: list[tuple[np.ndarray, np.ndarray]],
     column_head: np.ndarray,
+    defined: np.ndarray | None = None,
 ) -> tuple[CrossFit, LinearProbes]:
     """Train (probes and shuffled-label control together), score the held-out steps; the probes to save."""
     log.info(
@@ -214,12 +231,18 @@ def _fit(
         len(fold_rows),
     )
     permutations = cfg.shuffled_permutations if cfg.shuffled_control else 0
-    fitted = cross_fit(data, targets, fold_rows, cfg, seeds, permutations, column_head)
+    fitted = cross_fit(data, targets, fold_rows, cfg, seeds, permutations, column_head, defined)
     probes = fitted.probes
     if len(fold_rows) > 1:  # cross-validated figures; the saved probes learn from every episode
         groups = column_groups(data, column_head, 0, cfg.split.by == "leave-one-task-out")
         probes = fit_probes(
-            data.hidden, targets, np.arange(data.num_steps), cfg.probe, seeds["probe"], groups
+            data.hidden,
+            targets,
+            np.arange(data.num_steps),
+            cfg.probe,
+            seeds["probe"],
+            groups,
+            defined=defined,
         )
     for p in {id(fitted.probes): fitted.probes, id(probes): probes}.values():
         _warn_at_cap(p)
@@ -353,7 +376,8 @@ def _observer(
         check_no_leak(observer.episode, train_rows, test_rows)
     targets = np.concatenate([observer.labels[h][:, filters[h].kept] for h in heads], axis=1)
     column_head = np.concatenate([np.full(len(filters[h].kept), i) for i, h in enumerate(heads)])
-    fitted = cross_fit(observer, targets, fold_rows, cfg, seeds, 0, column_head)
+    defined = observer.targets_defined({h: filters[h].kept for h in heads})
+    fitted = cross_fit(observer, targets, fold_rows, cfg, seeds, 0, column_head, defined)
     obs_weights = (
         weights
         if fitted.num_groups == weights.shape[1]

@@ -99,6 +99,7 @@ def fit_probes(
     *,
     penalized: torch.Tensor | None = None,
     init: tuple[torch.Tensor, torch.Tensor] | None = None,
+    defined: np.ndarray | None = None,
     warm_start: bool = True,
 ) -> LinearProbes:
     """Fit one multi-label probe per layer on ``rows`` of ``hidden`` (layers, steps, hidden).
@@ -109,6 +110,9 @@ def fit_probes(
     weights positives by the training negative/positive ratio. ``penalized`` and ``init``: as
     :func:`~vlaprobe.probes.lbfgs.fit_logistic`'s; without ``init``, a searched C's final fit starts from the
     search's solutions at that C (``warm_start``, see :func:`~vlaprobe.probes.regularization.choose_c`).
+    ``defined`` (steps, atoms) bool like ``targets``, when given: an undefined entry (an atom over an object
+    absent from the row's task) is left out of its atom's fit, C search and class balance (weight 0; the L2
+    strength counts the defined rows).
     """
     device = resolve_device(cfg.device)
     rows = np.sort(np.asarray(rows))
@@ -116,11 +120,19 @@ def fit_probes(
         raise ValueError("no training rows")
     x, mean, std = training_matrix(hidden, rows, device, cfg.standardize)
     y = torch.as_tensor(np.asarray(targets)[rows], dtype=torch.float32, device=device)
-    num_layers, n = x.shape[0], x.shape[1]
-    weight = None
+    d = (
+        None
+        if defined is None
+        else torch.as_tensor(np.asarray(defined)[rows], dtype=torch.float32, device=device)
+    )
+    num_layers = x.shape[0]
+    n = x.shape[1] if d is None else d.sum(0).cpu().numpy()
+    weight = d
     if cfg.balance:
-        freq = y.mean(0).clamp(1e-4, 1 - 1e-4)
+        freq = y.mean(0) if d is None else (y * d).sum(0) / d.sum(0).clamp_min(1.0)
+        freq = freq.clamp(1e-4, 1 - 1e-4)
         weight = 1 + ((1 - freq) / freq - 1) * y
+        weight = weight if d is None else weight * d
     cv = None
     if c is not None or len(cfg.c_grid) == 1:
         given = c if c is not None else cfg.c_grid[0]
@@ -128,7 +140,7 @@ def fit_probes(
     elif groups is None:
         raise ValueError("choosing C by cross-validation needs the rows' episodes (groups=)")
     else:
-        cv, per_column, searched = choose_c(x, y, rows, groups, cfg, seed, warm_start=warm_start)
+        cv, per_column, searched = choose_c(x, y, rows, groups, cfg, seed, d, warm_start=warm_start)
         if init is None and searched is not None:
             init = _final_start(searched, groups.scored, y, weight)
     l2 = torch.as_tensor(l2_of_c(per_column, n), dtype=torch.float32)
