@@ -14,7 +14,8 @@ episodes x 138 steps, 33 hidden states of size 64, 224 + 12 atoms). One torch th
 
     .venv/bin/python bench/c_search.py
 
-Prints progress on stderr and one JSON line with the figures on stdout (``ratio``: cold seconds / warm).
+Prints progress on stderr and one JSON line with the figures on stdout (``ratio``: cold / warm CPU seconds,
+robust to other jobs on the machine with one thread; the wall times are printed too).
 """
 
 from __future__ import annotations
@@ -66,20 +67,20 @@ def balanced(probes: LinearProbes, data: ProbeData, y: np.ndarray, test: np.ndar
 
 
 def per_c_calls(calls: list[tuple[float, int]], grid: int) -> dict[str, list[float]]:
-    """Seconds and solver iterations of the search per C, summed over the folds (the search's calls run fold
+    """CPU seconds and solver iterations of the search per C, summed over the folds (the search's calls run fold
     by fold, each over the ascending grid)."""
     per = np.array(calls, float).reshape(-1, grid, 2).sum(0)
     return {"seconds": [round(v, 2) for v in per[:, 0]], "iterations": [int(v) for v in per[:, 1]]}
 
 
 def recording() -> list[tuple[float, int]]:
-    """(seconds, summed iterations) of every solver call of the C search, in order."""
+    """(CPU seconds, summed iterations) of every solver call of the C search, in order."""
     calls: list[tuple[float, int]] = []
 
     def fit(*args: Any, **kwargs: Any) -> tuple[torch.Tensor, torch.Tensor, lbfgs.Convergence]:
-        start = time.perf_counter()
+        start = time.process_time()
         w, b, conv = lbfgs.fit_logistic(*args, **kwargs)
-        calls.append((time.perf_counter() - start, int(conv.iterations.sum())))
+        calls.append((time.process_time() - start, int(conv.iterations.sum())))
         return w, b, conv
 
     setattr(regularization, "fit_logistic", fit)  # noqa: B010 (the search's solver, timed)
@@ -115,12 +116,12 @@ def main() -> None:
     for on in (False, True):
         log(f"{'warm' if on else 'cold'} search ...")
         calls[on] = recording()
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         fits[on] = fit_probes(
             data.hidden, targets, train, ProbeConfig(device="cpu"), 1, groups, warm_start=on
         )
-        seconds[on] = time.perf_counter() - start
-        log(f"  {seconds[on]:.1f} s")
+        seconds[on] = (time.perf_counter() - start, time.process_time() - cpu)
+        log(f"  {seconds[on][0]:.1f} s wall, {seconds[on][1]:.1f} s CPU")
     cold, warm = fits[False], fits[True]
     assert (
         cold.cv is not None
@@ -136,9 +137,11 @@ def main() -> None:
     )
     result = {
         "size": size,
-        "cold_seconds": round(seconds[False], 2),
-        "warm_seconds": round(seconds[True], 2),
-        "ratio": round(seconds[False] / seconds[True], 2),
+        "cold_cpu_seconds": round(seconds[False][1], 2),
+        "warm_cpu_seconds": round(seconds[True][1], 2),
+        "ratio": round(seconds[False][1] / seconds[True][1], 2),
+        "cold_wall_seconds": round(seconds[False][0], 2),
+        "warm_wall_seconds": round(seconds[True][0], 2),
         "c_choices": int(warm.cv.chosen.size),
         "c_choices_differing": int((warm.cv.chosen != cold.cv.chosen).sum()),
         "cv_score_max_difference": float(np.nanmax(np.abs(warm.cv.score - cold.cv.score))),
