@@ -7,9 +7,10 @@ for every logit, one ``bmm`` for every weight gradient) until each one's gradien
 1. the training rows are copied once into one float32 (layers, rows, hidden) tensor, standardised with
    their own mean and standard deviation per layer and feature (saved with the probes, applied at readout);
 2. the inverse L2 strength C is chosen per layer and head by episode-grouped cross-validation on the
-   training rows (:mod:`vlaprobe.probes.regularization`): every (fold, C, atom) is one more column of the
-   same matmuls, with the fold's held-out rows weighted 0;
-3. the probes are fit on all training rows with their layer's and head's C.
+   training rows (:mod:`vlaprobe.probes.regularization`): per fold, its atoms are the columns of one fit on
+   its own rows, warm-started along the C grid;
+3. the probes are fit on all training rows with their layer's and head's C, the searched atoms starting
+   from the folds' mean solution at that C.
 """
 
 from __future__ import annotations
