@@ -20,7 +20,7 @@ LIBERO = {
 }  # fmt: skip
 """Benches that build the real LIBERO simulator."""
 KEYS = {
-    "capture_overhead": "ratio", "cognition_step": "ms_per_step", "collect_throughput": "steps_per_s",
+    "c_search": "ratio", "capture_overhead": "ratio", "cognition_step": "ms_per_step", "collect_throughput": "steps_per_s",
     "diverse_data": "wall_s", "expert_success": "success_rate", "finetune": "samples_per_s",
     "gpu": "parameters",
     "init_variation": "varying", "label_speed": "label_ms_per_state", "live": "rate_ratio",

@@ -17,7 +17,7 @@ from vlaprobe.probes.data import ProbeData, synthetic_data
 from vlaprobe.probes.lbfgs import fit_logistic, l2_of_c
 from vlaprobe.probes.matched import pair_counts
 from vlaprobe.probes.metrics import METRICS, atom_metrics
-from vlaprobe.probes.regularization import ColumnGroups, _held_out
+from vlaprobe.probes.regularization import ColumnGroups, _held_out, choose_c
 from vlaprobe.probes.results import read_evaluation
 from vlaprobe.probes.split import filter_labels
 from vlaprobe.probes.trainer import fit_probes
@@ -127,16 +127,15 @@ def test_masked_held_out_scores_equal_those_of_the_defined_rows_alone() -> None:
     _, truth, _, defined = _scored(2)
     x = torch.from_numpy(rng.normal(size=(2, 60, 4))).float()
     w, b = torch.from_numpy(rng.normal(size=(2, 4, 3))).float(), torch.zeros(2, 3)
-    loss, balanced = _held_out(x, truth, w, b, [np.arange(60)], 0.0, defined=defined)
-    plain_loss, _ = _held_out(x, truth, w, b, [np.arange(60)], 0.0)
+    rows = np.arange(60)
+    loss, balanced = _held_out(x, rows, truth, w, b, 0.0, defined=defined)
+    plain_loss, _ = _held_out(x, rows, truth, w, b, 0.0)
     for a in range(3):
         keep = np.flatnonzero(defined[:, a])
-        l1, b1 = _held_out(
-            x[:, keep], truth[keep][:, [a]], w[:, :, [a]], b[:, [a]], [np.arange(len(keep))], 0.0
-        )
-        np.testing.assert_allclose(loss[:, :, [a]], l1, rtol=1e-6)
-        np.testing.assert_allclose(balanced[:, :, [a]], b1)
-    assert not np.allclose(loss[:, :, 0], plain_loss[:, :, 0])
+        l1, b1 = _held_out(x, keep, truth[keep][:, [a]], w[:, :, [a]], b[:, [a]], 0.0)
+        np.testing.assert_allclose(loss[:, [a]], l1, rtol=1e-6)
+        np.testing.assert_allclose(balanced[:, [a]], b1)
+    assert not np.allclose(loss[:, 0], plain_loss[:, 0])
 
 
 def test_masked_fit_and_c_search_equal_fitting_on_the_defined_rows_alone() -> None:
@@ -168,6 +167,52 @@ def test_masked_fit_and_c_search_equal_fitting_on_the_defined_rows_alone() -> No
     np.testing.assert_allclose(masked.weight[:, :, 0], alone.weight[:, :, 0], atol=2e-3)
     plain = fit_probes(data.hidden, targets, rows, cfg, 0, groups)
     assert not np.allclose(plain.weight[:, :, 0], alone.weight[:, :, 0], atol=2e-3)
+
+
+def test_masked_warm_starts_find_what_the_cold_starts_do() -> None:
+    """With the mask, the warm-started C path and final fit (from the folds' mean at the chosen C) give the
+    cold starts' chosen C, scores and probes (fewer iterations: test_regularization's harder problem)."""
+    data = synthetic_data(num_tasks=2, episodes_per_task=4, steps_per_episode=30, num_layers=2, hidden_size=8,
+                          num_object=3, num_action=0, constant_fraction=0.0, outlier_dims=0, seed=3, dtype=torch.float32)  # fmt: skip
+    targets = data.labels["object"].copy()
+    defined = np.ones_like(targets)
+    defined[np.arange(len(targets)) % 30 < 10, 0] = False
+    defined[data.episode == 0, 2] = False
+    targets[~defined] = False
+    groups = ColumnGroups(data.episode, data.episode_tasks, np.zeros(3, np.int64), np.ones(3, bool))
+    cfg = ProbeConfig(standardize=False, c_grid=(0.01, 0.1, 1.0, 10.0), tol=1e-6, max_iter=3000, cv_folds=2)
+    rows = np.arange(len(targets))
+    warm, cold = (fit_probes(data.hidden, targets, rows, cfg, 0, groups, defined=defined, warm_start=w) for w in (True, False))  # fmt: skip
+    assert warm.cv is not None and cold.cv is not None and warm.cv.score is not None
+    np.testing.assert_array_equal(warm.cv.chosen, cold.cv.chosen)
+    np.testing.assert_allclose(warm.cv.score, cold.cv.score, atol=0.005)  # type: ignore[arg-type]
+    torch.testing.assert_close(warm.weight, cold.weight, atol=2e-3, rtol=0)
+    torch.testing.assert_close(warm.bias, cold.bias, atol=2e-3, rtol=0)
+    assert warm.convergence is not None and warm.convergence.converged.all()
+
+
+def test_the_final_start_averages_only_the_folds_that_fit_a_column() -> None:
+    """Column 1 is defined only on fold 0's held-out episodes: fold 1 alone fits it (on exactly its defined
+    rows), so the final fit's start there is the fit of the defined rows alone at the chosen C."""
+    data = synthetic_data(num_tasks=2, episodes_per_task=4, steps_per_episode=30, num_layers=2, hidden_size=8,
+                          num_object=2, num_action=0, constant_fraction=0.0, outlier_dims=0, seed=3, dtype=torch.float32)  # fmt: skip
+    x, rows = data.hidden.float(), np.arange(data.num_steps)
+    groups = ColumnGroups(data.episode, data.episode_tasks, np.arange(2), np.ones(2, bool))
+    cfg = ProbeConfig(c_grid=(0.1, 1.0), tol=1e-7, max_iter=3000, cv_folds=2)
+    y = torch.as_tensor(data.labels["object"], dtype=torch.float32)
+    cv, _, _ = choose_c(x, y, rows, groups, cfg, 0)
+    assert cv is not None and cv.folds == 2
+    defined = torch.ones_like(y)
+    defined[:, 1] = torch.as_tensor(np.isin(data.episode, cv.fold_test[0]), dtype=torch.float32)
+    cv, per_column, start = choose_c(x, y, rows, groups, cfg, 0, defined)
+    assert start is not None
+    keep = np.flatnonzero(defined[:, 1].numpy())
+    w, b, _ = fit_logistic(
+        x[:, keep], y[keep, 1:], torch.as_tensor(l2_of_c(per_column[:, 1:], len(keep)), dtype=torch.float32),
+        tol=1e-7, max_iter=3000,
+    )  # fmt: skip
+    torch.testing.assert_close(start[0][:, :, 1:], w, atol=1e-3, rtol=0)
+    torch.testing.assert_close(start[1][:, 1:], b, atol=1e-3, rtol=0)
 
 
 def test_filter_counts_defined_rows_and_drops_what_no_row_defines() -> None:

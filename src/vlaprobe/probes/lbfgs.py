@@ -91,15 +91,19 @@ class _Problem:
         per row log1p(sig expm1(delta)) - y delta where |delta| < 1. Subtracting two float32 losses cannot
         resolve the tiny decreases near the minimum of a strongly penalised problem, where the line search
         then accepted steps that did not lower the objective and ran to the iteration cap."""
+        change = torch.expm1(delta.clamp(-1.0, 1.0)).mul_(sig).log1p_()  # exact where |delta| <= 1
         small = delta.abs() < 1
-        stable = torch.log1p(sig * torch.expm1(torch.where(small, delta, torch.zeros_like(delta))))
-        change = torch.where(small, stable, F.softplus(z + delta) - F.softplus(z)) - self.y * delta
+        if not bool(small.all()):  # (near the minimum the steps are small: no softplus pass at all)
+            change = torch.where(small, change, F.softplus(z + delta) - F.softplus(z))
+        change.sub_(self.y * delta)
         if self.weight is not None:
-            change = change * self.weight
+            change.mul_(self.weight)
         return change.sum(1) * self.inv_n
 
-    def gradient(self, z: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
-        r = torch.sigmoid(z).sub_(self.y)
+    def gradient(self, z: torch.Tensor, p: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(gradient at ``p``, sigmoid(z)): the line search from ``p`` reuses the latter."""
+        sig = torch.sigmoid(z)
+        r = sig - self.y
         if self.weight is not None:
             r.mul_(self.weight)
         r.mul_(self.inv_n)
@@ -108,7 +112,7 @@ class _Problem:
         g[:, :, -1] = r.sum(1)
         g[:, :, :-1].sub_(self.center * g[:, :, -1:])
         g[:, :, :-1].add_(self.penalized_part(p[:, :, :-1]) * self.l2[..., None])
-        return g
+        return g, sig
 
     def penalty(self, p: torch.Tensor) -> torch.Tensor:
         w = p[:, :, :-1]
@@ -154,11 +158,12 @@ def _line_search(
     p: torch.Tensor,
     d: torch.Tensor,
     z: torch.Tensor,
+    sig: torch.Tensor,
     f: torch.Tensor,
     gd: torch.Tensor,
     step: torch.Tensor,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Per-column Armijo backtracking from ``step``.
+    """Per-column Armijo backtracking from ``step`` (``sig``: sigmoid(z)).
 
     Returns (accepted step, 0 where none was found; the objective there, ``f`` where none; logits dz).
     The first trial covers every column; the later ones only the columns still pending (usually few), so
@@ -171,7 +176,6 @@ def _line_search(
     accepted = torch.zeros_like(step)
     f_new = f.clone()
     cols = torch.arange(step.shape[1], device=step.device)
-    sig = torch.sigmoid(z)
     sub, zs, sigs, dzs, f_ref = prob, z, sig, dz, f
     for trial_index in range(40):
         if not bool(pending.any()):
@@ -198,6 +202,7 @@ class _State:
 
     p: torch.Tensor  # (L, K, H + 1) parameters, the bias last
     z: torch.Tensor  # (L, n, K) logits
+    sig: torch.Tensor  # (L, n, K) sigmoid(z)
     f: torch.Tensor  # (L, K) objective
     g: torch.Tensor  # (L, K, H + 1) gradient
     gamma: torch.Tensor  # (L, K) initial inverse-Hessian scale
@@ -214,6 +219,7 @@ class _State:
         return _State(
             p=self.p.index_select(1, keep),
             z=self.z.index_select(2, keep),
+            sig=self.sig.index_select(2, keep),
             f=self.f.index_select(1, keep),
             g=self.g.index_select(1, keep),
             gamma=self.gamma.index_select(1, keep),
@@ -242,10 +248,10 @@ def _solve_chunk(prob: _Problem, p: torch.Tensor, tol: float, max_iter: int, his
     """
     z = prob.logits(p)
     f = prob.data_loss(z) + prob.penalty(p)
-    g = prob.gradient(z, p)
+    g, sig = prob.gradient(z, p)
     active = g.abs().amax(-1) > tol
-    st = _State(p, z, f, g, torch.ones_like(f), active, torch.zeros_like(f, dtype=torch.long), [])
-    out = _State(p.clone(), z, f.clone(), g.clone(), st.gamma, active.clone(), st.iterations.clone(), [])
+    st = _State(p, z, sig, f, g, torch.ones_like(f), active, torch.zeros_like(f, dtype=torch.long), [])
+    out = _State(p.clone(), z, sig, f.clone(), g.clone(), st.gamma, active.clone(), st.iterations.clone(), [])
     cols = torch.arange(p.shape[1], device=p.device)
     for it in range(max_iter):
         if it % 10 == 0 and it > 0 and int(st.active.any(0).sum()) < 0.75 * len(cols):
@@ -272,7 +278,7 @@ def _iterate(prob: _Problem, st: _State, tol: float, history: int, first: bool, 
     step = torch.ones_like(st.f)
     if first:
         step = torch.clamp(1.0 / g.abs().sum(-1).clamp_min(1e-12), max=1.0)
-    step, f_new, dz = _line_search(prob, st.p, d, st.z, st.f, gd, step)
+    step, f_new, dz = _line_search(prob, st.p, d, st.z, st.sig, st.f, gd, step)
     active &= ~(active & (step == 0))  # no acceptable step: stuck
     s = d * step[..., None]
     st.p = st.p + s
@@ -282,7 +288,7 @@ def _iterate(prob: _Problem, st: _State, tol: float, history: int, first: bool, 
     else:
         st.z.add_(step[:, None] * dz)
         st.f = f_new
-    g_new = prob.gradient(st.z, st.p)
+    g_new, st.sig = prob.gradient(st.z, st.p)
     yv = g_new - g
     sy = _dot(s, yv)
     curved = sy > 1e-10
@@ -327,9 +333,7 @@ def fit_logistic(
         (weight > 0).sum(0).float() if weight is not None else torch.full((k,), float(n), device=x.device)
     )
     inv_n = 1.0 / counts.clamp_min(1.0)
-    wy = y if weight is None else y * weight
     total = counts if weight is None else weight.sum(0)
-    freq = (wy.sum(0) / total.clamp_min(1e-12)).clamp(1e-4, 1 - 1e-4)
     per_layer = 4 * (6 * n * max(k, 1) + (2 * history + 8) * max(k, 1) * (hidden + 1))
     chunk = 1 if x.device.type == "cpu" else max(1, min(num_layers, int(memory_mb * 2**20 // per_layer)))
     weights = torch.empty((num_layers, hidden, k))
@@ -347,7 +351,7 @@ def fit_logistic(
             prob = _Problem(xs, y, weight, inv_n, l2[part].to(x.device, torch.float32), center, mask)
             p = torch.zeros((part.stop - part.start, k, hidden + 1), device=x.device)
             if init is None:
-                p[:, :, -1] = torch.logit(freq)
+                p[:, :, -1] = cold_bias(y, weight)
             else:
                 p[:, :, :-1] = init[0][part].transpose(1, 2).to(x.device)
                 p[:, :, -1] = init[1][part].to(x.device) + _dot(center, p[:, :, :-1])
@@ -365,6 +369,15 @@ def fit_logistic(
         max_iter=max_iter,
     )
     return weights, biases, conv
+
+
+def cold_bias(y: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
+    """(columns,) the solver's cold start's bias (with weights 0): each column's weighted log-odds of ``y``
+    (rows, columns), clamped to frequencies 1e-4 ... 1 - 1e-4."""
+    y = y.to(torch.float32)
+    wy = y if weight is None else y * weight
+    total = torch.tensor(float(len(y))) if weight is None else weight.sum(0)
+    return torch.logit((wy.sum(0) / total.clamp_min(1e-12)).clamp(1e-4, 1 - 1e-4))
 
 
 def l2_of_c(c: np.ndarray | float, rows: np.ndarray | float) -> np.ndarray:

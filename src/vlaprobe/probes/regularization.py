@@ -14,11 +14,15 @@ The folds divide the *training* episodes and are shaped like the split that scor
 at least 2 training episodes are held out, so every held-out episode's task is trained on, as in the test
 split; with ``--split leave-one-task-out`` whole tasks are held out. The test episodes never influence C.
 Where nothing can be held out (one training episode per task) C is ``ProbeConfig.c_without_cv`` and
-``vlaprobe train`` warns. Per C, every (fold, atom) is one column of a single batched fit
-(:func:`~vlaprobe.probes.lbfgs.fit_logistic`), its fold's held-out rows weighted 0; the grid runs from the
-strongest penalty to the weakest, each fit starting from the previous one's solution (a warm start: the
-same minimiser, fewer iterations). The features are those of the final fit (standardised with the whole
-training split's statistics, which use no label). The held-out log-loss is recorded too (``loss``).
+``vlaprobe train`` warns. Per fold and C, the fold's atoms are the columns of one batched fit
+(:func:`~vlaprobe.probes.lbfgs.fit_logistic`) on the fold's own training rows; the grid runs from the
+strongest penalty to the weakest, each fit starting from the fold's solution at the C before it (a warm
+start along the regularisation path, as scikit-learn's ``LogisticRegressionCV``: the same minimiser, fewer
+iterations), and the final fit on all training rows starts from the mean of the folds' solutions at the
+chosen C. With a union store's defined mask, each fold's fit weights its undefined (row, atom) entries 0 (the
+L2 strength counting each atom's defined rows) and its held-out scores leave them out. The features are those
+of the final fit (standardised with the whole training split's statistics, which use no label). The held-out
+log-loss is recorded too (``loss``).
 """
 
 from __future__ import annotations
@@ -108,47 +112,36 @@ def select_c(score: np.ndarray, grid: list[float], tolerance: float) -> np.ndarr
 
 def _held_out(
     x: torch.Tensor,
+    held: np.ndarray,
     truth: np.ndarray,
     w: torch.Tensor,
     b: torch.Tensor,
-    fold_rows: list[np.ndarray],
     threshold_logit: float,
     chunk: int = 2,
     defined: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(layers, folds, scored) held-out log-loss and balanced accuracy of each fold's columns on its rows.
-
-    Fold f's probes are the columns ``f * scored ... (f + 1) * scored`` of ``w``, ``b``; its held-out rows are
-    ``fold_rows[f]``; ``truth`` is bool (rows, scored). ``defined`` (rows, scored) bool leaves the undefined
-    entries out of both (NaN where a fold holds out no defined row of an atom).
-    """
+    """(layers, scored) held-out log-loss and balanced accuracy of one fold's probes ``w`` (layers, hidden,
+    scored), ``b`` on its held-out rows ``held`` of ``x`` (layers, rows, hidden); ``truth`` bool (held, scored).
+    ``defined`` bool like ``truth``, when given, leaves the undefined entries out of both (NaN where the fold
+    holds out no defined row of an atom)."""
     num_layers, scored = x.shape[0], truth.shape[1]
-    loss = np.empty((num_layers, len(fold_rows), scored))
+    loss = np.empty((num_layers, scored))
     balanced = np.empty_like(loss)
     y = torch.as_tensor(truth, dtype=torch.float32, device=x.device)
     d = None if defined is None else torch.as_tensor(defined, dtype=torch.float32, device=x.device)
+    index = torch.as_tensor(held, dtype=torch.long, device=x.device)
     for start in range(0, num_layers, chunk):
         part = slice(start, min(num_layers, start + chunk))
-        for f, rows in enumerate(fold_rows):
-            cols = slice(f * scored, (f + 1) * scored)
-            index = torch.as_tensor(rows, dtype=torch.long, device=x.device)
-            z = torch.baddbmm(
-                b[part, None, cols].to(x.device),
-                x[part].index_select(1, index),
-                w[part, :, cols].to(x.device),
-            )
-            entry = F.softplus(z) - y[index] * z
-            if d is None:
-                loss[part, f] = entry.mean(1).cpu().numpy()
-            else:
-                n = d[index].sum(0)
-                mean = (entry * d[index]).sum(1) / n.clamp_min(1.0)
-                loss[part, f] = torch.where(n > 0, mean, torch.nan).cpu().numpy()
-            held = None if defined is None else defined[rows]
-            counts = confusion_by_group(
-                (z > threshold_logit).cpu(), truth[rows], np.zeros(len(rows)), 1, held
-            )
-            balanced[part, f] = metrics_from_counts(counts[0])["balanced_accuracy"]
+        z = torch.baddbmm(b[part, None].to(x.device), x[part].index_select(1, index), w[part].to(x.device))
+        entry = F.softplus(z) - y * z
+        if d is None:
+            loss[part] = entry.mean(1).cpu().numpy()
+        else:
+            n = d.sum(0)
+            mean = (entry * d).sum(1) / n.clamp_min(1.0)
+            loss[part] = torch.where(n > 0, mean, torch.nan).cpu().numpy()
+        counts = confusion_by_group((z > threshold_logit).cpu(), truth, np.zeros(len(truth)), 1, defined)
+        balanced[part] = metrics_from_counts(counts[0])["balanced_accuracy"]
     return loss, balanced
 
 
@@ -164,6 +157,10 @@ def _group_mean(x: np.ndarray, scored_group: np.ndarray, ids: np.ndarray) -> np.
     return out
 
 
+Start = tuple[torch.Tensor, torch.Tensor]
+"""A solver start: weights (layers, hidden, columns) and biases (layers, columns), as ``fit_logistic``'s ``init``."""
+
+
 def choose_c(
     x: torch.Tensor,
     y: torch.Tensor,
@@ -172,12 +169,19 @@ def choose_c(
     cfg: ProbeConfig,
     seed: int,
     defined: torch.Tensor | None = None,
-) -> tuple[CrossValidation | None, np.ndarray]:
+    *,
+    warm_start: bool = True,
+) -> tuple[CrossValidation | None, np.ndarray, Start | None]:
     """C per (layer, column) for training rows ``rows`` (features ``x`` (layers, rows, hidden), targets ``y``).
 
+    Returns the cross-validation record (None when no fold can be held out: then ``cfg.c_without_cv``),
+    (layers, columns) C values and, with ``warm_start``, a start for the final fit of the scored columns: the
+    mean over the folds of their probes at the chosen C (else None). Each fold is fit on its own training rows;
+    with ``warm_start`` each C of the ascending grid starts from the fold's solution at the C before it, else
+    from the cold start (the same minimisers: ``warm_start=False`` is there to check and time that).
     ``defined`` (rows, columns) 0/1, when given: the undefined entries are left out of every fit (weight 0,
-    the L2 strength counting the defined rows) and of every held-out score. Returns the cross-validation
-    record (None when no fold can be held out: then ``cfg.c_without_cv``) and (layers, columns) C values.
+    the L2 strength counting each column's defined rows), of every held-out score and of the start's mean
+    (a fold that defines none of a column's fit rows does not count).
     """
     grid = sorted(float(c) for c in cfg.c_grid)
     num_layers = x.shape[0]
@@ -185,46 +189,74 @@ def choose_c(
     episodes = np.unique(groups.episode[rows])
     folds = search_folds(groups.episode_tasks[episodes], cfg.cv_folds, seed, groups.across_tasks)
     if not folds:
-        return None, np.full((num_layers, y.shape[1]), cfg.c_without_cv)
+        return None, np.full((num_layers, y.shape[1]), cfg.c_without_cv), None
     row_episode = np.searchsorted(episodes, groups.episode[rows])
     scored = np.flatnonzero(groups.scored)
     ys = y[:, scored]
-    in_fold = [np.isin(row_episode, f.train) for f in folds]
-    masks = [torch.as_tensor(m, dtype=torch.float32, device=x.device) for m in in_fold]
     ds = None if defined is None else defined[:, scored].to(x.device, torch.float32)
-    fits = [m[:, None].expand(-1, len(scored)) if ds is None else m[:, None] * ds for m in masks]
-    weight = torch.cat(fits, 1)  # (rows, folds * scored)
-    counts = [f.sum(0).cpu().numpy() for f in fits]  # per fold, the rows each column is fit on
-    targets = ys.repeat(1, len(folds))
     truth = ys.cpu().numpy() > 0.5
-    held_rows = [np.flatnonzero(~m) for m in in_fold]
     held_defined = None if ds is None else ds.cpu().numpy() > 0.5
     threshold_logit = math.log(cfg.threshold / (1 - cfg.threshold))
-    losses, scores, start = [], [], None
-    for c in grid:  # ascending: each C starts from the solution of the stronger penalty before it
-        l2 = np.concatenate([l2_of_c(c, n) for n in counts])
-        l2_t = torch.as_tensor(l2, dtype=torch.float32)[None].expand(num_layers, -1).contiguous()
-        w, b, _ = fit_logistic(
-            x,
-            targets,
-            l2_t,
-            weight=weight,
-            tol=cfg.tol,
-            max_iter=cfg.max_iter,
-            history=cfg.history,
-            memory_mb=cfg.memory_mb,
-            init=start,
-        )
-        start = (w, b)
-        loss, balanced = _held_out(x, truth, w, b, held_rows, threshold_logit, defined=held_defined)
-        losses.append(loss)
-        scores.append(balanced)
+    losses = np.empty((num_layers, len(grid), len(folds), len(scored)))
+    scores = np.empty_like(losses)
+    size = (num_layers, x.shape[2], len(scored))
+    path = [(torch.zeros(size), torch.zeros((num_layers, len(scored)))) for _ in grid] if warm_start else []
+    # (per C, the folds' solutions summed: the final fit's start; with a mask, per column the folds summed)
+    summed: torch.Tensor | int = len(folds) if ds is None else torch.zeros(len(scored))
+    for f, fold in enumerate(folds):
+        in_fold = np.isin(row_episode, fold.train)
+        fit_rows = torch.as_tensor(np.flatnonzero(in_fold), dtype=torch.long, device=x.device)
+        held = np.flatnonzero(~in_fold)
+        xf, yf = x.index_select(1, fit_rows), ys.index_select(0, fit_rows)  # the fold's rows only
+        df = None if ds is None else ds.index_select(0, fit_rows)  # its fit's weights: the defined entries
+        n = np.full(len(scored), len(fit_rows)) if df is None else df.sum(0).cpu().numpy()
+        has = None if df is None else torch.as_tensor(n > 0, dtype=torch.float32)
+        held_d = None if held_defined is None else held_defined[held]
+        start: Start | None = None
+        for j, c in enumerate(grid):  # ascending: each C starts from the solution of the stronger penalty
+            l2 = torch.as_tensor(l2_of_c(c, n), dtype=torch.float32)[None].expand(num_layers, -1).contiguous()
+            w, b, _ = fit_logistic(
+                xf,
+                yf,
+                l2,
+                weight=df,
+                tol=cfg.tol,
+                max_iter=cfg.max_iter,
+                history=cfg.history,
+                memory_mb=cfg.memory_mb,
+                init=start,
+            )
+            losses[:, j, f], scores[:, j, f] = _held_out(
+                x, held, truth[held], w, b, threshold_logit, defined=held_d
+            )
+            if warm_start:
+                start = (w, b)
+                path[j][0].add_(w if has is None else w * has)
+                path[j][1].add_(b if has is None else b * has)
+        if has is not None and isinstance(summed, torch.Tensor):
+            summed.add_(has)
+        del xf, df
     scored_group = groups.group[scored]
-    loss = _group_mean(np.stack(losses, 1), scored_group, ids)  # (layers, groups, grid)
-    score = _group_mean(np.stack(scores, 1), scored_group, ids)
+    loss = _group_mean(losses, scored_group, ids)  # (layers, groups, grid)
+    score = _group_mean(scores, scored_group, ids)
     chosen = select_c(score, grid, cfg.c_tolerance)
     per_column = chosen[:, np.searchsorted(ids, groups.group)]
     cv = CrossValidation(
         grid, len(folds), loss, chosen, ids, score, cfg.c_tolerance, tuple(episodes[f.test] for f in folds)
     )
-    return cv, per_column
+    return cv, per_column, _start_at(path, np.searchsorted(grid, per_column[:, scored]), summed)
+
+
+def _start_at(path: list[Start], at: np.ndarray, folds: torch.Tensor | int) -> Start | None:
+    """The mean fold solution at grid index ``at`` (layers, scored) of every (layer, column), ``folds`` the
+    number of folds summed (or per column); None without a path."""
+    if not path:
+        return None
+    w, b = torch.zeros_like(path[0][0]), torch.zeros_like(path[0][1])
+    for j, (wj, bj) in enumerate(path):
+        pick = torch.as_tensor(at == j)
+        w = torch.where(pick[:, None], wj, w)
+        b = torch.where(pick, bj, b)
+    if isinstance(folds, torch.Tensor):
+        folds = folds.clamp_min(1.0)
+    return w / folds, b / folds

@@ -7,9 +7,10 @@ for every logit, one ``bmm`` for every weight gradient) until each one's gradien
 1. the training rows are copied once into one float32 (layers, rows, hidden) tensor, standardised with
    their own mean and standard deviation per layer and feature (saved with the probes, applied at readout);
 2. the inverse L2 strength C is chosen per layer and head by episode-grouped cross-validation on the
-   training rows (:mod:`vlaprobe.probes.regularization`): every (fold, C, atom) is one more column of the
-   same matmuls, with the fold's held-out rows weighted 0;
-3. the probes are fit on all training rows with their layer's and head's C.
+   training rows (:mod:`vlaprobe.probes.regularization`): per fold, its atoms are the columns of one fit on
+   its own rows, warm-started along the C grid;
+3. the probes are fit on all training rows with their layer's and head's C, the searched atoms starting
+   from the folds' mean solution at that C.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import torch
 from vlaprobe.configs.train import ProbeConfig
 from vlaprobe.devices import resolve_device
 from vlaprobe.probes.apply import apply_probes_to_rows
-from vlaprobe.probes.lbfgs import Convergence, fit_logistic, l2_of_c
+from vlaprobe.probes.lbfgs import Convergence, cold_bias, fit_logistic, l2_of_c
 from vlaprobe.probes.regularization import ColumnGroups, CrossValidation, choose_c
 
 
@@ -100,6 +101,7 @@ def fit_probes(
     penalized: torch.Tensor | None = None,
     init: tuple[torch.Tensor, torch.Tensor] | None = None,
     defined: np.ndarray | None = None,
+    warm_start: bool = True,
 ) -> LinearProbes:
     """Fit one multi-label probe per layer on ``rows`` of ``hidden`` (layers, steps, hidden).
 
@@ -107,9 +109,11 @@ def fit_probes(
     (one value, or one per (layer, atom)), the single value of ``cfg.c_grid``, or chosen per layer and column
     group by cross-validation over the training episodes (needs ``groups``). Class balancing (``cfg.balance``)
     weights positives by the training negative/positive ratio. ``penalized`` and ``init``: as
-    :func:`~vlaprobe.probes.lbfgs.fit_logistic`'s. ``defined`` (steps, atoms) bool like ``targets``, when given:
-    an undefined entry (an atom over an object absent from the row's task) is left out of its atom's fit, C
-    search and class balance (weight 0; the L2 strength counts the defined rows).
+    :func:`~vlaprobe.probes.lbfgs.fit_logistic`'s; without ``init``, a searched C's final fit starts from the
+    search's solutions at that C (``warm_start``, see :func:`~vlaprobe.probes.regularization.choose_c`).
+    ``defined`` (steps, atoms) bool like ``targets``, when given: an undefined entry (an atom over an object
+    absent from the row's task) is left out of its atom's fit, C search and class balance (weight 0; the L2
+    strength counts the defined rows).
     """
     device = resolve_device(cfg.device)
     rows = np.sort(np.asarray(rows))
@@ -124,6 +128,12 @@ def fit_probes(
     )
     num_layers = x.shape[0]
     n = x.shape[1] if d is None else d.sum(0).cpu().numpy()
+    weight = d
+    if cfg.balance:
+        freq = y.mean(0) if d is None else (y * d).sum(0) / d.sum(0).clamp_min(1.0)
+        freq = freq.clamp(1e-4, 1 - 1e-4)
+        weight = 1 + ((1 - freq) / freq - 1) * y
+        weight = weight if d is None else weight * d
     cv = None
     if c is not None or len(cfg.c_grid) == 1:
         given = c if c is not None else cfg.c_grid[0]
@@ -131,13 +141,9 @@ def fit_probes(
     elif groups is None:
         raise ValueError("choosing C by cross-validation needs the rows' episodes (groups=)")
     else:
-        cv, per_column = choose_c(x, y, rows, groups, cfg, seed, d)
-    weight = d
-    if cfg.balance:
-        freq = y.mean(0) if d is None else (y * d).sum(0) / d.sum(0).clamp_min(1.0)
-        freq = freq.clamp(1e-4, 1 - 1e-4)
-        weight = 1 + ((1 - freq) / freq - 1) * y
-        weight = weight if d is None else weight * d
+        cv, per_column, searched = choose_c(x, y, rows, groups, cfg, seed, d, warm_start=warm_start)
+        if init is None and searched is not None:
+            init = _final_start(searched, groups.scored, y, weight)
     l2 = torch.as_tensor(l2_of_c(per_column, n), dtype=torch.float32)
     w, b, conv = fit_logistic(
         x,
@@ -154,3 +160,19 @@ def fit_probes(
     if mean is not None and std is not None:  # on the CPU, as fit_logistic returns the weights
         mean, std = mean.cpu(), std.cpu()
     return LinearProbes(weight=w, bias=b, mean=mean, std=std, c=per_column, convergence=conv, cv=cv)
+
+
+def _final_start(
+    searched: tuple[torch.Tensor, torch.Tensor],
+    scored: np.ndarray,
+    y: torch.Tensor,
+    weight: torch.Tensor | None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The final fit's start: the search's (mean fold) solutions at the chosen C for the ``scored`` columns,
+    the cold start (w = 0, b = the log-odds) for the others (e.g. shuffled-label copies, not searched)."""
+    num_layers, hidden, _ = searched[0].shape
+    cols = torch.as_tensor(np.flatnonzero(scored))
+    w = torch.zeros((num_layers, hidden, y.shape[1]))
+    b = cold_bias(y, weight).cpu().expand(num_layers, -1).clone()
+    w[:, :, cols], b[:, cols] = searched
+    return w, b
