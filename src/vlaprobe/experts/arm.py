@@ -10,7 +10,6 @@ gripper is free can still put the forearm into a drawer's front above the object
 
 from __future__ import annotations
 
-import mujoco
 import numpy as np
 
 from vlaprobe.envs.libero import LiberoTaskEnv
@@ -29,6 +28,8 @@ class ArmModel:
     """The robot arm of ``env``: predicts its links' collision boxes for a grip-site pose (module doc)."""
 
     def __init__(self, env: LiberoTaskEnv, eef_site: int, gripper_geoms: np.ndarray) -> None:
+        import mujoco  # here, not at the top: MuJoCo picks its GL backend on import (envs/setup.py picks first)
+
         robot = env.sim_env.robots[0]
         self._model = env.sim_env.sim.model._model
         self._live = env.sim_env.sim.data._data
@@ -60,6 +61,8 @@ class ArmModel:
     def solve(self, pos: np.ndarray, rot: np.ndarray) -> np.ndarray:
         """The arm's joint positions that put the grip site at ``pos`` with rotation ``rot`` (from the live
         configuration); the scratch state is left in that configuration."""
+        import mujoco
+
         model, data = self._model, self._scratch
         data.qpos[:] = self._live.qpos
         rest = np.asarray(getattr(self._controller, "initial_joint", data.qpos[self._qpos]), dtype=float)
@@ -87,6 +90,8 @@ class ArmModel:
         """Least signed distance (metres, capped at ``limit``) between the links' collision geoms and the
         ``obstacles`` geoms with the grip site at ``pos``, ``rot``: MuJoCo's own distance (meshes by their
         convex hulls; a box around a forearm's mesh would touch a drawer's front at every grasp side)."""
+        import mujoco
+
         self.solve(pos, rot)
         model, data = self._model, self._scratch
         best = limit
