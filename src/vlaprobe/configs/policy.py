@@ -43,6 +43,7 @@ class PolicyConfig:
 
     model: str = "tiny-libero"
     """"tiny-libero" (the shipped tiny OpenVLA trained on LIBERO-spatial expert demonstrations, the default),
+    "tiny-libero-diverse" (the same shape trained on sampled layouts with perturbations, docs/tiny-libero.md),
     "tiny-libero-init" (its network before training: seeded random weights, the control observer), "tiny" (the
     random tiny model with OpenVLA's 256 patches), an OpenVLA checkpoint folder (official HF layout:
     config.json, *.safetensors, dataset_statistics.json, tokenizer.json), or a Hugging Face hub id
