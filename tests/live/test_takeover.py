@@ -64,7 +64,7 @@ def test_the_alarm_hands_the_policy_to_the_expert_and_back(fake_run: Path, tmp_p
         takeover_steps=3,
         takeover_most=2,
     )
-    assert hello["protocol"] == 2 and hello["drivers"] == ["policy"]
+    assert hello["protocol"] == 3 and hello["drivers"] == ["policy"]
     assert hello["takeover"] == {"mode": "alarm", "steps": 3, "most": 2, "stall": 4, "hold": 5, "count": 1}
     start, steps, end = msgs[0], msgs[1:-1], msgs[-1]
     assert start["takeover"] == "alarm" and end["type"] == "episode_end"

@@ -116,6 +116,7 @@ export interface Takeover {
  */
 export interface EpisodeStart {
   atoms: HeadNames;
+  defined?: HeadFlags | null;
   driver: string;
   episode_id: string;
   goal_objects?: string[];

@@ -107,8 +107,10 @@ class TaskColumns:
         store_atoms: Mapping[str, Sequence[str]],
         task_atoms: Mapping[str, Sequence[str]],
         task_undefined: Mapping[str, Sequence[str]] | None = None,
+        advice: str = "collect this task into another store (--tasks, --out)",
     ) -> TaskColumns:
-        """The columns of ``task_atoms`` in ``store_atoms`` (every task atom must be a store atom)."""
+        """The columns of ``task_atoms`` in ``store_atoms`` (every task atom must be a store atom; else one line
+        ending in ``advice``)."""
         columns, undefined = {}, {}
         for head, names in store_atoms.items():
             at = {a: i for i, a in enumerate(names)}
@@ -117,7 +119,7 @@ class TaskColumns:
             if missing:
                 raise VlaprobeError(
                     f"the task's {head} atoms {missing[:3]} are not in the store's vocabulary (the union of the "
-                    "selected tasks' scenes); collect this task into another store (--tasks, --out)"
+                    f"selected tasks' scenes); {advice}"
                 )
             columns[head] = np.array([at[a] for a in own], np.int64)
             gone = set(names) - set(own) | set((task_undefined or {}).get(head, ()))

@@ -103,6 +103,12 @@ def _floats(a: np.ndarray | None) -> list[float] | None:
     return None if not np.isfinite(a).all() else [round(float(x), 5) for x in a]
 
 
+def _probs(probs: np.ndarray, defined: dict[str, np.ndarray] | None, head: str) -> list[float | None]:
+    """Rounded probabilities; None where not probed (NaN) or undefined in the episode (``defined`` False)."""
+    keep = ~np.isnan(probs) if defined is None else ~np.isnan(probs) & defined[head]
+    return [round(float(p), 4) if k else None for p, k in zip(probs, keep, strict=True)]
+
+
 def _violations(items: Sequence[Violation]) -> list[P.Violation]:
     return [
         P.Violation(
@@ -169,6 +175,7 @@ class StepBuilder:
             max_steps=s.max_steps,
             atoms=P.HeadNames(object=list(s.atoms["object"]), action=list(s.atoms["action"])),
             probed=P.HeadFlags(**{h: [bool(x) for x in probed[h]] for h in HEADS}),
+            defined=None if s.defined is None else P.HeadFlags(**{h: s.defined[h].tolist() for h in HEADS}),
             subgoals=[P.SubgoalInfo(index=int(g.index), name=str(g.name)) for g in subgoals],
             goal_objects=s.goal.objects(),
             store_episode=f"{STORE_PREFIX}{s.key}" if s.source == "store" and s.key else None,
@@ -229,7 +236,7 @@ class StepBuilder:
                 **{
                     h: P.HeadPrediction(
                         values=values[h].astype(int).tolist(),
-                        probs=[None if np.isnan(p) else round(float(p), 4) for p in reading[h].probs],
+                        probs=_probs(reading[h].probs, self.spec.defined, h),
                     )
                     for h in HEADS
                 }

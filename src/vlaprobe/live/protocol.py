@@ -16,10 +16,11 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
 from vlaprobe.configs.serve import LiveDriver
 
 SCHEMA_FILE = Path(__file__).with_name("protocol.schema.json")
-PROTOCOL_VERSION = 2
+PROTOCOL_VERSION = 3
 """Version of the message set, sent as ``hello.protocol``: 2 added the cognition's alarm and the takeovers
-(``--takeover``); a hello without the field is version 1. New fields are optional: a client of an older
-version reads the messages it knows."""
+(``--takeover``); 3 the atoms an episode leaves undefined (``episode_start.defined``, their probabilities
+null); a hello without the field is version 1. New fields are optional: a client of an older version reads
+the messages it knows."""
 
 
 class _Model(BaseModel):
@@ -84,7 +85,8 @@ class HeadPrediction(_Model):
     values: list[int]
     """0/1 per atom."""
     probs: list[float | None]
-    """Probe probability per atom; null for an atom that is not probed."""
+    """Probe probability per atom; null for an atom that is not probed or is undefined in the episode
+    (``episode_start.defined``)."""
 
 
 class Prediction(_Model):
@@ -225,6 +227,11 @@ class EpisodeStart(_Model):
     max_steps: int
     atoms: HeadNames
     probed: HeadFlags
+    defined: HeadFlags | None = None
+    """False for an atom undefined in this episode: over an object absent from the task's scene (a suite whose
+    tasks have different objects serves the union of their atoms), or ``should-move-towards`` under a goal it
+    does not follow. Such an atom is neither true nor false: its values are 0, its probability null, it is never
+    asserted nor scored. Null: every atom is defined (protocol 3; before, always null)."""
     subgoals: list[SubgoalInfo]
     goal_objects: list[str] = Field(default_factory=list)
     """The objects and regions the task's goal conjunction names (``TaskGoal.objects``): the UI pins the atoms that

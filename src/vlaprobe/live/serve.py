@@ -200,6 +200,7 @@ def build_engine(
             return make_task_env(task, env_cfg)
 
     extra = {} if make_driver is None else {"make_driver": make_driver}
+    atoms = {h: probes.atom_names(h) for h in HEADS}  # a union suite's: every episode's, undefined ones marked
     sim = Simulator(
         policy,
         make_env,
@@ -211,10 +212,10 @@ def build_engine(
         num_init_states=num_init_states,
         suite=cfg.env.suite,
         takeover=cfg.intervention,
+        atoms=atoms,
         **extra,
     )
     replays = None if cfg.store is None else store_replays(cfg.store, probes, make_builder)
-    atoms = {h: probes.atom_names(h) for h in HEADS}
     kept = {h: set(probes.atoms(h)) for h in HEADS}
     hello = P.Hello(
         version=__version__,

@@ -13,11 +13,13 @@ import random
 import re
 import threading
 from collections.abc import Callable, Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from vlaprobe.cognition.plan import stored_task_goal, task_goal
+from vlaprobe.collection.defined import TaskColumns, episode_defined
 from vlaprobe.configs.collect import DriverName
 from vlaprobe.configs.takeover import TakeoverConfig
 from vlaprobe.envs.base import TaskEnv
@@ -27,6 +29,7 @@ from vlaprobe.live.pipeline import STORE_PREFIX, EpisodeSpec
 from vlaprobe.policies.base import VLAPolicy
 from vlaprobe.rollout import EnvCache, EpisodeControl, EpisodeRunner, StepRecord, make_driver, paced
 from vlaprobe.rollout.runner import MakeDriver
+from vlaprobe.symbols import HEADS
 
 MakeEnv = Callable[[int], TaskEnv]
 
@@ -48,12 +51,15 @@ class Simulator:
         num_init_states: int | None = None,
         suite: str = "libero_spatial",
         takeover: TakeoverConfig | None = None,
+        atoms: dict[str, list[str]] | None = None,
     ) -> None:
         """``step_limit``: the longest budget the simulator runs (LIBERO's horizon less the settling steps);
         ``num_init_states``: per task, known up front (a bad init is then refused before the episode starts);
         ``suite``: the LIBERO suite of ``tasks`` (recorded with every episode); ``takeover``: when the
-        scripted expert takes over from the policy (``serve --takeover``; None: never)."""
-        self.policy, self.tasks, self.suite = policy, tasks, suite
+        scripted expert takes over from the policy (``serve --takeover``; None: never); ``atoms``: the
+        server's atom names per head, those of the probes (a union suite's: the union of its tasks'
+        vocabularies); None: each task's own."""
+        self.policy, self.tasks, self.suite, self.atoms = policy, tasks, suite, atoms
         self.takeover = takeover or TakeoverConfig()
         self.runner = EpisodeRunner(policy, EnvCache(make_env, on_new=self._new_env), make_driver)
         self.max_steps, self.post_success_steps = max_steps, post_success_steps
@@ -127,7 +133,7 @@ class LiveSource:
                 init = sim._rng.randrange(env.num_init_states)
             elif not 0 <= int(init) < env.num_init_states:
                 raise VlaprobeError(f"no init state {init} for task {task}; use 0..{env.num_init_states - 1}")
-        vocab = env.labeler.vocabulary
+        atoms, self.columns, defined = episode_columns(env, sim.atoms)
         self.env, self.init = env, int(init)
         self.spec = EpisodeSpec(
             task=task,
@@ -138,13 +144,15 @@ class LiveSource:
             source="live",
             suite=sim.suite,
             goal=task_goal(env.goal_conjunction, env.scene),
-            atoms={"object": list(vocab.object_atoms), "action": list(vocab.action_atoms)},
+            atoms=atoms,
             takeover=sim.takeover.takeover if self.driver == "policy" else "none",
             seed=seed,
+            defined=defined,
         )
 
     def records(self, control: EpisodeControl | None = None) -> Iterator[StepRecord]:
-        return self.sim.runner.run(
+        """The episode's records, their ground truth widened to the server's atoms (0 where undefined)."""
+        records = self.sim.runner.run(
             self.env,
             self.driver,
             init=self.init,
@@ -155,6 +163,33 @@ class LiveSource:
             takeover=self.spec.takeover,
             takeover_steps=self.sim.takeover.takeover_steps,
         )
+        return records if self.columns is None else map(self._widen, records)
+
+    def _widen(self, rec: StepRecord) -> StepRecord:
+        assert self.columns is not None
+        wide = {h: self.columns.widen(h, np.asarray(getattr(rec, f"{h}_atoms"), bool)[None])[0] for h in HEADS}
+        return replace(rec, object_atoms=wide["object"], action_atoms=wide["action"])
+
+
+def episode_columns(
+    env: TaskEnv, atoms: dict[str, list[str]] | None
+) -> tuple[dict[str, list[str]], TaskColumns | None, dict[str, np.ndarray] | None]:
+    """A live episode's atoms (``atoms``, else the task's own), where the task's labels sit among them
+    (None: in place), and its defined mask (None: every atom), read back from the ``atoms_defined`` attribute
+    collection would record for the episode (``collection.defined``): the atoms over objects absent from the
+    task, and those the task's labeler cannot label (``should-move-towards`` without a pick-and-place goal)."""
+    labeler = env.labeler
+    own = {h: list(labeler.vocabulary.atoms(h)) for h in HEADS}
+    atoms = own if atoms is None else atoms
+    columns = TaskColumns.of(
+        atoms,
+        own,
+        {"action": labeler.undefined_action_atoms},
+        advice="serve probes trained on a store that holds this task (--probes)",
+    )
+    defined = episode_defined(columns.attrs(atoms), atoms) if any(columns.undefined.values()) else None
+    in_place = all(np.array_equal(columns.columns[h], np.arange(columns.width[h])) for h in HEADS)
+    return atoms, None if in_place else columns, defined
 
 
 class StoreEpisodes:

@@ -11,6 +11,8 @@ export interface AtomInfo {
   /** Predicate name, e.g. `left-of` for `left-of(bowl,plate)`. */
   predicate: string;
   probed: boolean;
+  /** False: undefined in this episode (an object absent from the task; `episode_start.defined`). */
+  defined: boolean;
 }
 
 export function predicateOf(atom: string): string {
@@ -19,13 +21,15 @@ export function predicateOf(atom: string): string {
 }
 
 /** Every atom of the episode in vector order. */
-export function atomInfos(start: Pick<EpisodeStart, "atoms" | "probed">): AtomInfo[] {
+export function atomInfos(start: Pick<EpisodeStart, "atoms" | "probed" | "defined">): AtomInfo[] {
   const out: AtomInfo[] = [];
   for (const head of ["object", "action"] as const) {
     const names = start.atoms[head];
     const probed = start.probed[head];
+    const defined = start.defined?.[head];
     names.forEach((name, i) => {
-      out.push({ index: out.length, name, head, predicate: predicateOf(name), probed: probed[i] ?? false });
+      const info = { index: out.length, name, head, predicate: predicateOf(name), probed: probed[i] ?? false };
+      out.push({ ...info, defined: defined?.[i] ?? true });
     });
   }
   return out;

@@ -18,7 +18,7 @@ export function beliefRows(episode: EpisodeData, index: number, window: number, 
   const worldAges = truth ? agesAt((j) => episode.truth[j] ?? null, index, window) : [];
   const agreement = atomAgreement(predicted, truth, episode.probed);
   const probs = [...step.predicted.object.probs, ...step.predicted.action.probs];
-  return episode.atoms.map((a) => {
+  return episode.atoms.filter((a) => a.defined).map((a) => {
     const v = views[a.index];
     return {
       index: a.index,

@@ -7,6 +7,7 @@ export interface EpisodeData {
   id: string;
   start: EpisodeStart;
   atoms: AtomInfo[];
+  /** Scored atoms: probed and defined in the episode. */
   probed: boolean[];
   /** Steps in arrival order, without their images. */
   steps: Step[];
@@ -23,7 +24,7 @@ export function newEpisode(start: EpisodeStart): EpisodeData {
     id: start.episode_id,
     start,
     atoms,
-    probed: atoms.map((a) => a.probed),
+    probed: atoms.map((a) => a.probed && a.defined),
     steps: [],
     predicted: [],
     truth: [],

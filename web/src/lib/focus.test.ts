@@ -85,6 +85,19 @@ test("belief rows of an episode step: prediction vs world, world flips, pinned b
   expect(beliefRows(ep, 5, 5, new Set())).toEqual([]);
 });
 
+test("an atom the episode leaves undefined: no belief row, never scored", () => {
+  const start = fakeStart("e", ["on(a,b)", "on(x,b)"], ["grasped(a)"]);
+  start.defined = { object: [true, false], action: [true] };
+  const ep = newEpisode(start);
+  const s0 = fakeStep("e", 0, [1, 0], [0]);
+  s0.truth = { object: [0, 0], action: [0] };
+  addStep(ep, s0);
+  expect(ep.atoms.map((a) => a.defined)).toEqual([true, false, true]);
+  expect(ep.probed).toEqual([true, false, true]);
+  expect(beliefRows(ep, 0, 5, new Set()).map((r) => r.name)).toEqual(["on(a,b)", "grasped(a)"]);
+  expect(atomInfos(fakeStart("e", ["on(a,b)"], [])).map((a) => a.defined)).toEqual([true]); // protocol < 3
+});
+
 test("timeline rows: task-relevant first (action atoms always), then the other active atoms", () => {
   const atoms = atomInfos(fakeStart("e", ["on(x,y)", "on(a,b)", "left-of(a,c)"], ["grasped(a)", "grasped(x)"]));
   expect(timelineRows([0, 2], atoms, new Set(["a"]))).toEqual({ rows: [2, 3, 4, 0], pinned: 3 });
