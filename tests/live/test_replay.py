@@ -132,10 +132,15 @@ def test_replay_of_a_union_store_leaves_undefined_atoms_out(tmp_path: Path) -> N
         column = record.start.atoms.object.index(FLICKER)
         predicted = [s.predicted.object.values[column] for s in record.steps]
         cells = len(STEPS) * sum(int(readout.probed[h].sum()) for h in ("object", "action"))
+        probs = [s.predicted.object.probs[column] for s in record.steps]
         if undefined is None:  # the spatial store: the flicker is believed, violates, disagrees
+            assert record.start.defined is None and all(p is not None for p in probs)
             assert sum(predicted) == 6 and summary.violations.get("left_right_converse") == 1
             assert summary.agreement == round(1 - 6 / cells, 4) < 1
-        else:
+        else:  # marked undefined, with no probability a client could read as a prediction
+            assert record.start.defined is not None and not record.start.defined.object[column]
+            assert sum(record.start.defined.object) == len(record.start.atoms.object) - 1
+            assert all(p is None for p in probs)
             assert sum(predicted) == 0 and "left_right_converse" not in summary.violations
             assert not any(FLICKER in s.beliefs.asserted for s in record.steps)
             assert summary.agreement == 1.0

@@ -103,6 +103,13 @@ def _floats(a: np.ndarray | None) -> list[float] | None:
     return None if not np.isfinite(a).all() else [round(float(x), 5) for x in a]
 
 
+def _defined(defined: dict[str, np.ndarray] | None) -> P.HeadFlags | None:
+    """``episode_start.defined``: None where every atom is defined."""
+    if defined is None or all(np.all(defined[h]) for h in HEADS):
+        return None
+    return P.HeadFlags(**{h: [bool(x) for x in defined[h]] for h in HEADS})
+
+
 def _probs(probs: np.ndarray, defined: dict[str, np.ndarray] | None, head: str) -> list[float | None]:
     """Rounded probabilities; None where not probed (NaN) or undefined in the episode (``defined`` False)."""
     keep = ~np.isnan(probs) if defined is None else ~np.isnan(probs) & defined[head]
@@ -175,7 +182,7 @@ class StepBuilder:
             max_steps=s.max_steps,
             atoms=P.HeadNames(object=list(s.atoms["object"]), action=list(s.atoms["action"])),
             probed=P.HeadFlags(**{h: [bool(x) for x in probed[h]] for h in HEADS}),
-            defined=None if s.defined is None else P.HeadFlags(**{h: s.defined[h].tolist() for h in HEADS}),
+            defined=_defined(s.defined),
             subgoals=[P.SubgoalInfo(index=int(g.index), name=str(g.name)) for g in subgoals],
             goal_objects=s.goal.objects(),
             store_episode=f"{STORE_PREFIX}{s.key}" if s.source == "store" and s.key else None,
