@@ -200,7 +200,9 @@ def build_engine(
             return make_task_env(task, env_cfg)
 
     extra = {} if make_driver is None else {"make_driver": make_driver}
-    atoms = {h: probes.atom_names(h) for h in HEADS}  # a union suite's: every episode's, undefined ones marked
+    atoms = {
+        h: probes.atom_names(h) for h in HEADS
+    }  # a union suite's: every episode's, undefined ones marked
     sim = Simulator(
         policy,
         make_env,

@@ -167,7 +167,9 @@ class LiveSource:
 
     def _widen(self, rec: StepRecord) -> StepRecord:
         assert self.columns is not None
-        wide = {h: self.columns.widen(h, np.asarray(getattr(rec, f"{h}_atoms"), bool)[None])[0] for h in HEADS}
+        wide = {
+            h: self.columns.widen(h, np.asarray(getattr(rec, f"{h}_atoms"), bool)[None])[0] for h in HEADS
+        }
         return replace(rec, object_atoms=wide["object"], action_atoms=wide["action"])
 
 
