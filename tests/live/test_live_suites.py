@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from tests.live.fakes import LiveServer, random_probes
 from websockets.sync.client import connect
@@ -67,3 +68,59 @@ def test_serve_suite_streams_the_tasks_own_goal(expected: dict, tmp_path: Path) 
         len(s["truth"]["object"]) == len(expected["atoms"]["object"]) for s in steps
     )
     assert [g["name"] for g in steps[-1]["truth_subgoals"]] == expected["subgoals"]
+
+
+UNION_SUITE, UNION_TASK = "libero_object", 0  # the tasks have different objects: the union of their atoms
+
+
+def test_serve_union_suite_marks_the_atoms_the_task_lacks(tmp_path: Path) -> None:
+    """Probes over LIBERO-object's union vocabulary (as probes of a store of all its tasks are): a live episode
+    of one task marks the other tasks' atoms undefined, as the collector records them for its episodes."""
+    from vlaprobe.envs.suite_vocabulary import suite_vocabulary
+
+    suite = suite_vocabulary(UNION_SUITE)
+    atoms = {h: list(suite.vocabulary.atoms(h)) for h in ("object", "action")}
+    env = LiberoTaskEnv(UNION_TASK, EnvConfig(suite=UNION_SUITE))
+    undefined_action = set(env.labeler.undefined_action_atoms)  # should-move-towards: an In goal
+    env.close()
+    defined = {
+        "object": suite.defined("object")[UNION_TASK].tolist(),
+        "action": [
+            bool(d) and a not in undefined_action
+            for a, d in zip(atoms["action"], suite.defined("action")[UNION_TASK], strict=True)
+        ],
+    }
+    probes = random_probes(tmp_path / "probes", "tiny-openvla-seed0", 33, 64, atoms, suite=UNION_SUITE)
+    cfg = ServeConfig(
+        probes=probes,
+        model="tiny",
+        device="cpu",
+        recordings=tmp_path / "live",
+        env=EnvConfig(suite=UNION_SUITE),
+    )
+    app = create_app(build_engine(cfg, load_probes(cfg)), limits_of(cfg, None))
+    with LiveServer(app) as srv, connect(srv.url, max_size=None) as ws:
+        hello = json.loads(ws.recv(timeout=30))
+        start = {"type": "start", "task": UNION_TASK, "init": 0, "driver": "expert", "max_steps": STEPS}
+        ws.send(json.dumps(start))
+        msgs = []
+        while not msgs or msgs[-1]["type"] != "episode_end":
+            msgs.append(json.loads(ws.recv(timeout=120)))
+    assert hello["protocol"] == 3 and hello["probes"]["atoms"] == atoms
+    assert [t["index"] for t in hello["tasks"]] == list(range(10))
+    first, steps = msgs[0], [m for m in msgs if m["type"] == "step"]
+    assert first["atoms"] == atoms and first["defined"] == defined and len(steps) == STEPS
+    assert sum(defined["object"]) < len(atoms["object"])  # most of the union's atoms: other tasks' objects
+    for h in ("object", "action"):
+        undefined = ~np.array(defined[h])
+        for s in steps:
+            probs = np.array([p is not None for p in s["predicted"][h]["probs"]])
+            assert not probs[undefined].any() and probs[~undefined].any()
+            assert not np.array(s["predicted"][h]["values"], bool)[undefined].any()
+            assert not np.array(s["truth"][h], bool)[undefined].any()
+    truth = np.array([s["truth"]["object"] for s in steps], bool)
+    assert truth[:, np.array(defined["object"])].any()  # the task's own labels, in their union columns
+    from vlaprobe.cognition import diarc_term
+
+    never = {diarc_term(a) for a, d in zip(atoms["object"], defined["object"], strict=True) if not d}
+    assert not never & {b for s in steps for b in s["beliefs"]["asserted"]}
