@@ -32,6 +32,7 @@ from vlaprobe.probes.conditional import conditional_fit
 from vlaprobe.probes.data import ProbeData, load_store
 from vlaprobe.probes.evaluate import CrossFit, column_groups, cross_fit, evaluate_head
 from vlaprobe.probes.matched import Scored, add_within_cells
+from vlaprobe.probes.observer_control import head_columns, observer_control, warn_c_at_edge
 from vlaprobe.probes.outfolder import check_free_space, check_probe_folder, locked, replace_folder
 from vlaprobe.probes.probeset import ProbeSet
 from vlaprobe.probes.record import config_dict, evaluation_record, probe_meta
@@ -39,9 +40,6 @@ from vlaprobe.probes.results import (
     CONFIG_FILE,
     DroppedAtom,
     Evaluation,
-    HeadResult,
-    ObserverInfo,
-    ProbeFit,
     SkippedHead,
     read_evaluation,
     write_evaluation,
@@ -119,7 +117,7 @@ def train_on_data(
         )
     folds, fold_rows = _split_rows(data, cfg, seeds["split"])  # 1. by episode, leak-checked
     heads, filters, skipped_heads = _filter_atoms(data, cfg, heads, fold_rows)  # 2. atoms that vary
-    columns = _columns(heads, filters)
+    columns = head_columns(heads, filters)
     targets = np.concatenate([data.labels[h][:, filters[h].kept] for h in heads], axis=1)
     defined = data.targets_defined({h: filters[h].kept for h in heads})  # None: all defined
     column_head = np.concatenate([np.full(len(filters[h].kept), i) for i, h in enumerate(heads)])
@@ -148,11 +146,11 @@ def train_on_data(
         h: evaluate_head(h, data, filters[h], columns[h], fitted, targets, weights, threshold_logit, cfg)
         for h in heads
     }
-    _warn_c_at_edge({h: r.fit for h, r in head_results.items()})
+    warn_c_at_edge({h: r.fit for h, r in head_results.items()})
     observer_info, observed = None, None
     if observer is not None:
         log.info("observer control: %s", observer.model_id)
-        observer_info, observed = _observer(
+        observer_info, observed = observer_control(
             observer, data, heads, filters, folds, cfg, seeds, weights, threshold_logit, head_results
         )
     main = Scored(data, fitted, targets, weights[: cfg.bootstrap])
@@ -279,14 +277,6 @@ def _warn_at_cap(probes: LinearProbes) -> None:
         )
 
 
-def _warn_c_at_edge(fits: dict[str, ProbeFit | None]) -> None:
-    """Warn, per head, when the cross-validated C sits at an end of its grid at some layer."""
-    for head, fit in fits.items():
-        message = None if fit is None else fit.edge_warning(head)
-        if message:
-            log.warning("%s", message)
-
-
 def _tensors(
     probes: LinearProbes, heads: list[str], columns: dict[str, np.ndarray]
 ) -> dict[str, torch.Tensor]:
@@ -338,65 +328,3 @@ def _check_heads(data: ProbeData, cfg: TrainConfig) -> list[str]:
             f"no label head(s) {missing or '(none given)'}; use --heads with some of {data.heads}"
         )
     return list(cfg.heads)
-
-
-def _columns(heads: list[str], filters: dict[str, LabelFilter]) -> dict[str, np.ndarray]:
-    """Column range of each head in the concatenated target matrix."""
-    out, start = {}, 0
-    for h in heads:
-        out[h] = np.arange(start, start + len(filters[h].kept))
-        start += len(filters[h].kept)
-    return out
-
-
-def _observer(
-    observer: ProbeData,
-    data: ProbeData,
-    heads: list[str],
-    filters: dict[str, LabelFilter],
-    folds: list[Fold],
-    cfg: TrainConfig,
-    seeds: dict[str, int],
-    weights: np.ndarray,
-    threshold_logit: float,
-    head_results: dict[str, HeadResult],
-) -> tuple[ObserverInfo, Scored]:
-    """Train and evaluate the same atoms on a second observer's hidden states; sets each head's ``observer``
-    and returns the observer's held-out scores too."""
-    for h in heads:
-        if observer.atom_names.get(h) != data.atom_names[h]:
-            raise VlaprobeError(
-                f"observer store has other {h} atoms than the main store; collect both with the same vocabulary"
-            )
-    same_episodes = observer.episode_keys == data.episode_keys
-    if not same_episodes:
-        folds = make_folds(observer.episode_tasks, cfg.split, seeds["split"])
-    fold_rows = [(rows_of(observer.episode, f.train), rows_of(observer.episode, f.test)) for f in folds]
-    for train_rows, test_rows in fold_rows:
-        check_no_leak(observer.episode, train_rows, test_rows)
-    targets = np.concatenate([observer.labels[h][:, filters[h].kept] for h in heads], axis=1)
-    column_head = np.concatenate([np.full(len(filters[h].kept), i) for i, h in enumerate(heads)])
-    defined = observer.targets_defined({h: filters[h].kept for h in heads})
-    fitted = cross_fit(observer, targets, fold_rows, cfg, seeds, 0, column_head, defined)
-    obs_weights = (
-        weights
-        if fitted.num_groups == weights.shape[1]
-        else bootstrap_weights(fitted.num_groups, weights.shape[0], seeds["bootstrap"])
-    )
-    columns = _columns(heads, filters)
-    for h in heads:
-        r = evaluate_head(
-            h, observer, filters[h], columns[h], fitted, targets, obs_weights, threshold_logit, cfg
-        )
-        _warn_c_at_edge({f"{h} (observer {observer.model_id})": r.fit})
-        head_results[h].observer = r.probe
-        head_results[h].observer_best = r.best
-    info = ObserverInfo(
-        model_id=observer.model_id,
-        pooling=observer.pooling,
-        layers=list(observer.layers),
-        same_episodes=same_episodes,
-        steps=observer.num_steps,
-        episodes=len(observer.episode_keys),
-    )
-    return info, Scored(observer, fitted, targets, obs_weights[: cfg.bootstrap])
