@@ -1,6 +1,6 @@
 """The live protocol: every message between `vlaprobe serve` and its clients, as pydantic models.
 
-Defined once here; :func:`schema` exports them as JSON Schema into ``protocol.schema.json`` beside this file
+Defined once here (the parts they are made of in :mod:`vlaprobe.live.protocol_parts`); :func:`schema` exports them as JSON Schema into ``protocol.schema.json`` beside this file
 (``python -m vlaprobe.live.protocol`` rewrites it; a test checks it is current), from which the web UI
 generates its TypeScript types. docs/live.md explains the flow of messages.
 """
@@ -11,9 +11,80 @@ import json
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
+from pydantic import Field, TypeAdapter
 
 from vlaprobe.configs.serve import LiveDriver
+from vlaprobe.live.protocol_parts import (
+    Alarm,
+    BeliefDelta,
+    EpisodeSummary,
+    Event,
+    Flips,
+    FlipSet,
+    HeadBits,
+    HeadFlags,
+    HeadInts,
+    HeadNames,
+    HeadPrediction,
+    Prediction,
+    ProbeInfo,
+    Running,
+    StrictModel,
+    SubgoalInfo,
+    SubgoalState,
+    Takeover,
+    TakeoverSettings,
+    TaskInfo,
+    Timings,
+    Violation,
+)
+
+__all__ = [  # with the parts (vlaprobe.live.protocol_parts), importable from here
+    "CLIENT",
+    "PROTOCOL_VERSION",
+    "SCHEMA_FILE",
+    "Alarm",
+    "BeliefDelta",
+    "ClientMessage",
+    "DropCommand",
+    "EpisodeEnd",
+    "EpisodeListItem",
+    "EpisodeRecord",
+    "EpisodeStart",
+    "EpisodeSummary",
+    "ErrorMessage",
+    "Event",
+    "FlipSet",
+    "Flips",
+    "HeadBits",
+    "HeadFlags",
+    "HeadInts",
+    "HeadNames",
+    "HeadPrediction",
+    "Hello",
+    "History",
+    "PauseCommand",
+    "Prediction",
+    "ProbeInfo",
+    "Protocol",
+    "ReplayCommand",
+    "ResumeCommand",
+    "Running",
+    "ServerMessage",
+    "StartCommand",
+    "Status",
+    "Step",
+    "StopCommand",
+    "SubgoalInfo",
+    "SubgoalState",
+    "Takeover",
+    "TakeoverSettings",
+    "TaskInfo",
+    "Timings",
+    "Violation",
+    "schema",
+    "schema_text",
+]
 
 SCHEMA_FILE = Path(__file__).with_name("protocol.schema.json")
 PROTOCOL_VERSION = 3
@@ -23,179 +94,8 @@ null); a hello without the field is version 1. New fields are optional: a client
 the messages it knows."""
 
 
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-# -- parts ----------------------------------------------------------------------------------------
-class TaskInfo(_Model):
-    index: int
-    instruction: str
-
-
-class HeadNames(_Model):
-    """Atom names per head, in the order every per-atom list of an episode uses."""
-
-    object: list[str]
-    action: list[str]
-
-
-class HeadFlags(_Model):
-    object: list[bool]
-    action: list[bool]
-
-
-class HeadBits(_Model):
-    object: list[int]
-    action: list[int]
-
-
-class HeadInts(_Model):
-    object: int
-    action: int
-
-
-class ProbeInfo(_Model):
-    layers: HeadInts
-    """Hidden-state index each head's probe reads."""
-    threshold: float
-    atoms: HeadNames
-    probed: HeadFlags
-    """False: the atom was dropped in training; it is held at its training-majority value and never flips."""
-
-
-class Running(_Model):
-    episode_id: str
-    paused: bool = False
-    """The episode is paused (a pause command; resume or stop ends it)."""
-
-
-class SubgoalInfo(_Model):
-    index: int
-    name: str
-
-
-class SubgoalState(_Model):
-    index: int
-    name: str
-    status: Literal["pending", "active", "done", "regressed"]
-
-
-class HeadPrediction(_Model):
-    values: list[int]
-    """0/1 per atom."""
-    probs: list[float | None]
-    """Probe probability per atom; null for an atom that is not probed or is undefined in the episode
-    (``episode_start.defined``)."""
-
-
-class Prediction(_Model):
-    object: HeadPrediction
-    action: HeadPrediction
-
-
-class FlipSet(_Model):
-    on: list[str]
-    off: list[str]
-
-
-class Flips(_Model):
-    predicted: FlipSet
-    truth: FlipSet
-
-
-class BeliefDelta(_Model):
-    asserted: list[str]
-    """DIARC terms newly believed at this step, e.g. ``left_of(akita_black_bowl_1,plate_1)``."""
-    retracted: list[str]
-
-
-class Violation(_Model):
-    rule: str
-    message: str
-    atoms: list[str]
-    since: int
-    """Step at which the violation began."""
-
-
-class Event(_Model):
-    kind: Literal["subgoal_done", "goal_reached", "regression", "dropped", "stalled"]
-    t: int
-    message: str
-
-
-class Alarm(_Model):
-    """The cognition's alarm (``--takeover alarm``), read on the predictions: why it fired."""
-
-    kind: Literal["stall", "regression", "dropped", "violation"]
-    """"stall": no subgoal done for --takeover-stall steps; "regression", "dropped": the cognition's event;
-    "violation": a consistency rule's violation held --takeover-hold steps."""
-    reason: str
-    """One line, e.g. "no subgoal done for 40 steps (next: grasp akita_black_bowl_1)"."""
-    rules: list[str]
-    """The rules whose violations drove it (kind "violation")."""
-    atoms: list[str]
-    """The beliefs involved: the violations' atoms, or the stalled subgoal."""
-
-
-class Takeover(_Model):
-    """One handover of the policy's control to the scripted expert (``--takeover``)."""
-
-    index: int
-    """1 for the episode's first takeover, 2 for its second, ..."""
-    start: int
-    """The first step whose action the expert executed."""
-    reason: str
-    """The alarm's ``kind: reason``, or "random" (the control)."""
-    steps: int
-    """Actions the expert executed in it: so far (in a step) or in all (in the episode's summary)."""
-
-
-class TakeoverSettings(_Model):
-    """The server's ``--takeover`` (hello.takeover)."""
-
-    mode: Literal["alarm", "random"]
-    steps: int
-    """Actions the expert executes per takeover (--takeover-steps)."""
-    most: int
-    """Most takeovers per episode (--takeover-most)."""
-    stall: int
-    """Mode "alarm": the stall that fires it, in steps (--takeover-stall)."""
-    hold: int
-    """Mode "alarm": steps a violation must hold (--takeover-hold)."""
-    count: int
-    """Mode "random": takeovers per episode at random steps (--takeover-count)."""
-
-
-class Timings(_Model):
-    """Milliseconds spent per phase of the step (0 where a source has no such phase, e.g. replay)."""
-
-    env_ms: float
-    model_ms: float
-    probes_ms: float
-    cognition_ms: float
-    total_ms: float
-    label_ms: float = 0.0
-    driver_ms: float = 0.0
-
-
-class EpisodeSummary(_Model):
-    violations: dict[str, int]
-    """Rule id -> number of violations that began during the episode (from the predictions)."""
-    goal_step_predicted: int | None
-    goal_step_truth: int | None
-    agreement: float
-    """Share of (step, probed atom) pairs where the prediction equals the truth (1.0 without truth)."""
-    success_step: int | None = None
-    """First step at which the task's own success check held (``steps`` also counts the rows after it)."""
-    takeovers: list[Takeover] = Field(default_factory=list)
-    """The episode's takeovers (``--takeover``), each with its total ``steps``."""
-    expert_steps: int = 0
-    """Actions the scripted expert executed in takeovers."""
-
-
 # -- server -> client -----------------------------------------------------------------------------
-class Hello(_Model):
+class Hello(StrictModel):
     type: Literal["hello"] = "hello"
     version: str
     suite: str = "libero_spatial"
@@ -214,7 +114,7 @@ class Hello(_Model):
     """The server's --takeover (then ``drivers`` is ["policy"]); null: the driver acts alone."""
 
 
-class EpisodeStart(_Model):
+class EpisodeStart(StrictModel):
     type: Literal["episode_start"] = "episode_start"
     episode_id: str
     source: Literal["live", "recorded", "store"]
@@ -242,7 +142,7 @@ class EpisodeStart(_Model):
     """Who hands the policy's control to the scripted expert in this episode (hello.takeover's mode)."""
 
 
-class Step(_Model):
+class Step(StrictModel):
     type: Literal["step"] = "step"
     episode_id: str
     t: int
@@ -288,7 +188,7 @@ class Step(_Model):
     """Server wall clock (Unix seconds) when the message was ready to send: clients measure their lag."""
 
 
-class History(_Model):
+class History(StrictModel):
     """The episode so far, sent first to a client that joins mid-episode (steps without images)."""
 
     type: Literal["history"] = "history"
@@ -297,7 +197,7 @@ class History(_Model):
     steps: list[Step]
 
 
-class EpisodeEnd(_Model):
+class EpisodeEnd(StrictModel):
     type: Literal["episode_end"] = "episode_end"
     episode_id: str
     success: bool
@@ -306,7 +206,7 @@ class EpisodeEnd(_Model):
     summary: EpisodeSummary
 
 
-class Status(_Model):
+class Status(StrictModel):
     """Sent to every client when the running episode is paused or resumed (late joiners read hello.running)."""
 
     type: Literal["status"] = "status"
@@ -314,13 +214,13 @@ class Status(_Model):
     paused: bool
 
 
-class ErrorMessage(_Model):
+class ErrorMessage(StrictModel):
     type: Literal["error"] = "error"
     message: str
 
 
 # -- client -> server -----------------------------------------------------------------------------
-class StartCommand(_Model):
+class StartCommand(StrictModel):
     type: Literal["start"] = "start"
     task: int | str
     """Task index or its instruction (trimmed, any case)."""
@@ -331,25 +231,25 @@ class StartCommand(_Model):
     the settling steps (990 with the default 10): a larger budget is refused with an error."""
 
 
-class StopCommand(_Model):
+class StopCommand(StrictModel):
     type: Literal["stop"] = "stop"
 
 
-class PauseCommand(_Model):
+class PauseCommand(StrictModel):
     type: Literal["pause"] = "pause"
 
 
-class ResumeCommand(_Model):
+class ResumeCommand(StrictModel):
     type: Literal["resume"] = "resume"
 
 
-class DropCommand(_Model):
+class DropCommand(StrictModel):
     type: Literal["drop"] = "drop"
     steps: int | None = Field(default=None, ge=1, le=100)
     """Steps with the gripper forced open; null: the loop's default."""
 
 
-class ReplayCommand(_Model):
+class ReplayCommand(StrictModel):
     """Stream a stored episode (an id from GET /api/episodes) through the probes and the cognition."""
 
     type: Literal["replay"] = "replay"
@@ -359,7 +259,7 @@ class ReplayCommand(_Model):
 
 
 # -- REST -----------------------------------------------------------------------------------------
-class EpisodeListItem(_Model):
+class EpisodeListItem(StrictModel):
     id: str
     source: Literal["live", "store"]
     task: int
@@ -375,7 +275,7 @@ class EpisodeListItem(_Model):
     """ISO 8601 UTC."""
 
 
-class EpisodeRecord(_Model):
+class EpisodeRecord(StrictModel):
     """GET /api/episodes/{id}: every step's states (no images; GET .../frames/{t} has them)."""
 
     start: EpisodeStart
@@ -394,7 +294,7 @@ CLIENT = TypeAdapter(ClientMessage)
 """``CLIENT.validate_json(text)`` parses one client frame."""
 
 
-class Protocol(_Model):
+class Protocol(StrictModel):
     """Every message of the live protocol."""
 
     server: ServerMessage
