@@ -2,7 +2,8 @@
 
 Defined once here (the parts they are made of in :mod:`vlaprobe.live.protocol_parts`); :func:`schema`
 exports them as JSON Schema into ``protocol.schema.json`` beside this file (``python -m vlaprobe.live.protocol``
-rewrites it; a test checks it is current), from which the web UI generates its TypeScript types. docs/live.md explains the flow of messages.
+rewrites it; a test checks it is current), from which the web UI generates its TypeScript types.
+docs/live.md explains the flow of messages.
 """
 
 from __future__ import annotations
