@@ -8,13 +8,15 @@ as a replay of its stored episode would (``episode_start.defined``, null probabi
 from __future__ import annotations
 
 import json
+import shutil
+import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
 from tests.collection.fakes import HIDDEN, LAYERS, SCENE, FakeEnv
 from tests.collection.test_collect_union import CUP_SCENE
-from tests.live.fakes import SUCCESS_INIT, local_client, random_probes, real_engine
+from tests.live.fakes import SUCCESS_INIT, LiveServer, local_client, random_probes, real_engine
 
 from vlaprobe.configs.serve import ServeConfig
 from vlaprobe.envs.suite_vocabulary import union_vocabulary
@@ -86,3 +88,28 @@ def test_live_episode_of_the_task_with_every_object_defines_every_atom(union_app
     assert start.defined is None and steps  # null: every atom is defined
     cup = [i for i, a in enumerate(start.atoms.object) if "cup" in a]
     assert any(s.predicted.object.probs[i] is not None for s in steps for i in cup)
+
+
+@pytest.mark.skipif(not (shutil.which("javac") and shutil.which("java")), reason="no JDK (javac, java) found")
+def test_java_client_receives_the_undefined_atoms(union_app: object, tmp_path: Path) -> None:
+    """The DIARC client on a real server on 127.0.0.1 hears of the atoms task 0 lacks, and believes none."""
+    client = Path(__file__).resolve().parents[2] / "clients" / "diarc" / "src"
+    sources = sorted(str(p) for p in client.rglob("*.java"))
+    subprocess.run(["javac", "-d", str(tmp_path / "classes"), *sources], check=True, timeout=120)
+    with LiveServer(union_app) as srv:
+        start = ["--start", "0", "--init", str(SUCCESS_INIT), "--once"]
+        run = subprocess.run(
+            ["java", "-cp", str(tmp_path / "classes"), "vlaprobe.diarc.LiveClient", srv.url, *start],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+    assert run.returncode == 0, run.stderr
+    vocab, own = union_vocabulary([SCENE, CUP_SCENE]), build_vocabulary(SCENE)
+    lacking = [a for h in HEADS for a in vocab.atoms(h) if a not in own.atoms(h)]
+    lines = run.stdout.splitlines()
+    defined = sum(len(own.atoms(h)) for h in HEADS)
+    assert f"ATOMS defined={defined} undefined={len(lacking)}" in lines
+    assert f"UNDEFINED {' '.join(lacking)}" in lines
+    believed = next(line for line in lines if line.startswith("BELIEFS")).split()[1:]
+    assert believed and not any("cup" in b for b in believed)

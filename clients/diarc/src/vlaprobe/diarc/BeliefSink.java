@@ -43,6 +43,14 @@ public interface BeliefSink {
     /** A new episode begins: a DIARC component may clear its WORKING memory here. */
     default void episodeStart(String episodeId, String instruction) {}
 
+    /**
+     * The episode's atoms (object head, then action head), called after {@link #episodeStart}: those defined in it
+     * and those undefined (over an object absent from the task, in a suite whose tasks have different objects;
+     * {@code episode_start.defined}, protocol 3). An undefined atom is neither true nor false: no belief over it
+     * is ever asserted.
+     */
+    default void atoms(List<String> defined, List<String> undefined) {}
+
     /** The episode is over. */
     default void episodeEnd(String episodeId, boolean success, int steps) {}
 }

@@ -118,6 +118,16 @@ public final class LiveClient implements WebSocket.Listener {
     private void episodeStart(Map<String, Object> start) {
         beliefs.clear();
         sink.episodeStart(String.valueOf(start.get("episode_id")), String.valueOf(start.get("instruction")));
+        List<String> defined = new ArrayList<>(), undefined = new ArrayList<>();
+        Map<String, Object> atoms = Json.object(start.get("atoms")), flags = Json.object(start.get("defined"));
+        for (String head : List.of("object", "action")) {
+            List<Object> names = Json.array(atoms.get(head)), marks = Json.array(flags.get(head));
+            for (int i = 0; i < names.size(); i++) {
+                boolean known = i >= marks.size() || !Boolean.FALSE.equals(marks.get(i)); // null: every atom
+                (known ? defined : undefined).add(String.valueOf(names.get(i)));
+            }
+        }
+        sink.atoms(defined, undefined);
     }
 
     private void step(Map<String, Object> step) {
@@ -174,6 +184,12 @@ public final class LiveClient implements WebSocket.Listener {
         @Override
         public void alarm(int t, String kind, String reason, List<String> rules, List<String> atoms) {
             System.out.println("ALARM t=" + t + " " + kind + ": " + reason + " rules=" + rules + " atoms=" + atoms);
+        }
+
+        @Override
+        public void atoms(List<String> defined, List<String> undefined) {
+            System.out.println("ATOMS defined=" + defined.size() + " undefined=" + undefined.size());
+            if (!undefined.isEmpty()) System.out.println("UNDEFINED " + String.join(" ", undefined));
         }
 
         @Override
