@@ -113,3 +113,19 @@ def test_java_client_receives_the_undefined_atoms(union_app: object, tmp_path: P
     assert f"UNDEFINED {' '.join(lacking)}" in lines
     believed = next(line for line in lines if line.startswith("BELIEFS")).split()[1:]
     assert believed and not any("cup" in b for b in believed)
+
+
+def test_a_task_with_atoms_the_probes_lack_is_refused_in_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(FakeEnv, "SCENES", {1: CUP_SCENE})
+    app = app_of(tmp_path, [SCENE])  # probes of task 0's atoms: task 1's cup is not among them
+    with local_client(app) as c, c.websocket_connect("/ws") as ws:
+        ws.receive_text()
+        ws.send_text(json.dumps({"type": "start", "task": 1, "init": 0}))
+        reply = json.loads(ws.receive_text())
+    assert reply["type"] == "error" and "\n" not in reply["message"]
+    assert (
+        "cup" in reply["message"]
+        and "serve probes trained on a store that holds this task" in reply["message"]
+    )
