@@ -132,7 +132,8 @@ class EpisodeStart(StrictModel):
     """False for an atom undefined in this episode: over an object absent from the task's scene (a suite whose
     tasks have different objects serves the union of their atoms), or ``should-move-towards`` under a goal it
     does not follow. Such an atom is neither true nor false: its values are 0, its probability null, it is never
-    asserted nor scored. Null: every atom is defined (protocol 3; before, always null)."""
+    asserted nor scored; clients must not read its 0s as false. Null: every atom is defined (protocol 3; before,
+    always null)."""
     subgoals: list[SubgoalInfo]
     goal_objects: list[str] = Field(default_factory=list)
     """The objects and regions the task's goal conjunction names (``TaskGoal.objects``): the UI pins the atoms that
@@ -155,7 +156,8 @@ class Step(StrictModel):
     """The paper's client field: equals ``t``."""
     predicted: Prediction
     truth: HeadBits | None
-    """Ground-truth atoms from the detectors; null where the source has none."""
+    """Ground-truth atoms from the detectors; null where the source has none. An atom undefined in the episode
+    (``episode_start.defined`` false) is 0 here, neither true nor false: never read it as false."""
     flips: Flips
     beliefs: BeliefDelta
     violations: list[Violation]

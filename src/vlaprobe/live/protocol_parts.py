@@ -36,6 +36,9 @@ class HeadFlags(StrictModel):
 
 
 class HeadBits(StrictModel):
+    """0/1 per atom, in ``episode_start.atoms`` order. An atom the episode leaves undefined
+    (``episode_start.defined`` false) is sent as 0: a placeholder, not false."""
+
     object: list[int]
     action: list[int]
 
@@ -73,7 +76,8 @@ class SubgoalState(StrictModel):
 
 class HeadPrediction(StrictModel):
     values: list[int]
-    """0/1 per atom."""
+    """0/1 per atom; 0 also for an atom undefined in the episode (``episode_start.defined`` false), which a client
+    must not read as false."""
     probs: list[float | None]
     """Probe probability per atom; null for an atom that is not probed or is undefined in the episode
     (``episode_start.defined``)."""

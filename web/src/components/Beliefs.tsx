@@ -6,8 +6,7 @@
  */
 import { useMemo, useState } from "react";
 import { agreementPercent } from "../lib/agreement";
-import { groupByPredicate } from "../lib/atoms";
-import { beliefRows, episodeObjects } from "../lib/beliefRows";
+import { beliefGroups, beliefRows, episodeObjects } from "../lib/beliefRows";
 import type { EpisodeData } from "../lib/episode";
 import { type BeliefRow, type RowFilter, type RowOptions, focusedSections, passes } from "../lib/focus";
 import { BeliefRowView } from "./BeliefRow";
@@ -54,17 +53,17 @@ function Focused({ rows, opts }: { rows: BeliefRow[]; opts: RowOptions }) {
 }
 
 function Grouped({ episode, rows, opts }: { episode: EpisodeData; rows: BeliefRow[]; opts: RowOptions }) {
-  const groups = useMemo(() => groupByPredicate(episode.atoms), [episode.atoms]);
+  const groups = beliefGroups(episode.atoms, rows);
   return (
     <div className="groups">
       {groups.map((g) => {
-        const shown = g.atoms.map((a) => rows[a.index]).filter((r): r is BeliefRow => !!r && passes(r, opts));
+        const shown = g.rows.filter((r) => passes(r, opts));
         if (!shown.length) return null;
-        const on = g.atoms.filter((a) => rows[a.index]?.value === 1).length;
+        const on = g.rows.filter((r) => r.value === 1).length;
         return (
           <div className="group" key={`${g.head}:${g.predicate}`} data-predicate={g.predicate}>
             <h3>
-              {g.predicate} <span className="muted">{g.head} · {on}/{g.atoms.length} true</span>
+              {g.predicate} <span className="muted">{g.head} · {on}/{g.rows.length} true</span>
             </h3>
             <RowList rows={shown} window={opts.window} testid="group" />
           </div>

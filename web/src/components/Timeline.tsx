@@ -68,7 +68,7 @@ function Zoom({ zoom, setZoom, cw }: { zoom: number | "fit"; setZoom: (z: number
   );
 }
 
-function Legend({ rows, total, pinned }: { rows: number; total: number; pinned: number }) {
+function Legend({ rows, total, pinned, left }: { rows: number; total: number; pinned: number; left: number }) {
   return (
     <div className="legend raster-legend">
       <span>
@@ -87,6 +87,7 @@ function Legend({ rows, total, pinned }: { rows: number; total: number; pinned: 
         rows: {pinned} task-relevant (bold, on top), then the others true at some step: {rows} of {total} atoms · click a
         cell to jump there
       </span>
+      {left > 0 && <span data-testid="raster-undefined">{left} atoms undefined in this task (objects it lacks): not drawn</span>}
     </div>
   );
 }
@@ -134,6 +135,7 @@ function Raster({ episode, index, onSeek, zoom, setZoom }: RasterProps) {
   const activeKey = active.join(",");
   const { rows, pinned } = useMemo(() => timelineRows(active, episode.atoms, objects), [activeKey, episode.atoms, objects]); // new rows only
   const markers = useMemo(() => markersOf(episode.steps.slice(0, n)), [episode, n]);
+  const defined = useMemo(() => episode.atoms.filter((a) => a.defined).length, [episode.atoms]);
   const height = HEADER_H + rows.length * ROW_H;
   const view = useMemo(
     () => ({ raster, rows, pinned, cw, markers, stepT: (i: number) => episode.steps[i]?.t ?? i }),
@@ -159,7 +161,7 @@ function Raster({ episode, index, onSeek, zoom, setZoom }: RasterProps) {
     <>
       <div className="raster-tools">
         <Zoom zoom={zoom} setZoom={setZoom} cw={cw} />
-        <Legend rows={rows.length} total={episode.atoms.length} pinned={pinned} />
+        <Legend rows={rows.length} total={defined} pinned={pinned} left={episode.atoms.length - defined} />
       </div>
       <div className="raster-wrap" ref={wrap}>
         <canvas ref={labels} className="labels" aria-hidden="true" />

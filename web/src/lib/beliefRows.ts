@@ -1,5 +1,6 @@
 /** The belief rows of one step of an episode (prediction, world, flips, probability, pinned). */
 import { atomAgreement } from "./agreement";
+import { type AtomInfo, type Head, groupByPredicate } from "./atoms";
 import type { EpisodeData } from "./episode";
 import { atomViewsAt } from "./flips";
 import { type BeliefRow, agesAt, isPinned, taskObjects } from "./focus";
@@ -34,4 +35,24 @@ export function beliefRows(episode: EpisodeData, index: number, window: number, 
       prob: probs[a.index] ?? null,
     };
   });
+}
+
+/** The belief rows of one predicate (the grouped view). */
+export interface BeliefGroup {
+  head: Head;
+  predicate: string;
+  rows: BeliefRow[];
+}
+
+/**
+ * The rows grouped by predicate (the paper's order), over the atoms defined in the episode: rows are looked up by
+ * atom index, since `beliefRows` leaves the undefined atoms out (a row's position is not its atom's index).
+ */
+export function beliefGroups(atoms: readonly AtomInfo[], rows: readonly BeliefRow[]): BeliefGroup[] {
+  const byIndex = new Map(rows.map((r) => [r.index, r]));
+  return groupByPredicate(atoms.filter((a) => a.defined)).map((g) => ({
+    head: g.head,
+    predicate: g.predicate,
+    rows: g.atoms.map((a) => byIndex.get(a.index)).filter((r): r is BeliefRow => r !== undefined),
+  }));
 }

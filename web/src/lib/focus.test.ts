@@ -1,6 +1,6 @@
 import { expect, test } from "vitest";
 import { atomInfos } from "./atoms";
-import { beliefRows, episodeObjects } from "./beliefRows";
+import { beliefGroups, beliefRows, episodeObjects } from "./beliefRows";
 import { addStep, newEpisode } from "./episode";
 import { fakeStart, fakeStep } from "./fixtures";
 import { type BeliefRow, agesAt, argsOf, compareRows, focusedSections, isPinned, taskObjects, timelineRows } from "./focus";
@@ -96,6 +96,27 @@ test("an atom the episode leaves undefined: no belief row, never scored", () => 
   expect(ep.probed).toEqual([true, false, true]);
   expect(beliefRows(ep, 0, 5, new Set()).map((r) => r.name)).toEqual(["on(a,b)", "grasped(a)"]);
   expect(atomInfos(fakeStart("e", ["on(a,b)"], [])).map((a) => a.defined)).toEqual([true]); // protocol < 3
+});
+
+test("timeline rows leave out the atoms the episode leaves undefined, pinned action atoms included", () => {
+  const start = fakeStart("e", ["on(a,b)", "on(x,b)", "left-of(a,b)"], ["grasped(a)", "grasped(x)"]);
+  start.defined = { object: [true, false, true], action: [true, false] };
+  const atoms = atomInfos(start);
+  expect(timelineRows([0, 1, 2], atoms, new Set(["a"]))).toEqual({ rows: [0, 2, 3], pinned: 3 });
+  expect(timelineRows([1], atoms, new Set())).toEqual({ rows: [3], pinned: 1 });
+});
+
+test("belief groups: rows found by atom index when undefined atoms are left out", () => {
+  const start = fakeStart("e", ["on(x,b)", "on(a,b)", "left-of(a,b)"], ["grasped(a)"]);
+  start.defined = { object: [false, true, true], action: [true] };
+  const ep = newEpisode(start);
+  addStep(ep, fakeStep("e", 0, [0, 1, 0], [1]));
+  const groups = beliefGroups(ep.atoms, beliefRows(ep, 0, 5, new Set()));
+  expect(groups.map((g) => [g.predicate, g.rows.map((r) => [r.name, r.value])])).toEqual([
+    ["on", [["on(a,b)", 1]]],
+    ["left-of", [["left-of(a,b)", 0]]],
+    ["grasped", [["grasped(a)", 1]]],
+  ]);
 });
 
 test("timeline rows: task-relevant first (action atoms always), then the other active atoms", () => {

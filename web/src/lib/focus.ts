@@ -123,10 +123,17 @@ export function agesAt(bitsAt: (j: number) => readonly number[] | null, k: numbe
   return ages;
 }
 
-/** The timeline's rows: the task-relevant atoms first (every action atom, and pinned atoms once true), then the others true at some step. */
+/**
+ * The timeline's rows: the task-relevant atoms first (every action atom, and pinned atoms once true), then the others
+ * true at some step. Atoms the episode leaves undefined (`episode_start.defined`) are left out, as in the belief list:
+ * their 0s are placeholders, not "false".
+ */
 export function timelineRows(active: readonly number[], atoms: readonly AtomInfo[], objects: ReadonlySet<string>): { rows: number[]; pinned: number } {
+  const defined = new Set(atoms.filter((a) => a.defined).map((a) => a.index));
   const isActive = new Set(active);
-  const first = atoms.filter((a) => isPinned(a, objects) && (a.head === "action" || isActive.has(a.index))).map((a) => a.index);
+  const first = atoms
+    .filter((a) => a.defined && isPinned(a, objects) && (a.head === "action" || isActive.has(a.index)))
+    .map((a) => a.index);
   const pinnedSet = new Set(first);
-  return { rows: [...first, ...active.filter((i) => !pinnedSet.has(i))], pinned: first.length };
+  return { rows: [...first, ...active.filter((i) => defined.has(i) && !pinnedSet.has(i))], pinned: first.length };
 }
