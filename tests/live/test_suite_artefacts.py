@@ -64,6 +64,54 @@ def test_the_cognition_refuses_a_store_of_another_suite(
     assert code == 2 and len(err.splitlines()) == 1 and "libero_goal" in err
 
 
+def test_failure_prediction_refuses_probes_of_another_suite(
+    fake_run: Path, goal_store: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from vlaprobe.cognition.failures_load import load_episodes
+    from vlaprobe.configs.failures import FailuresConfig
+
+    cfg = FailuresConfig(store=goal_store, probes=fake_run / "probes", out=tmp_path / "f")
+    with pytest.raises(VlaprobeError, match=r"is from libero_goal, the probes in .* from libero_spatial"):
+        load_episodes(cfg)
+    code = main(["failures", "--store", str(goal_store), "--probes", str(fake_run / "probes"), "--out", str(cfg.out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "libero_goal" in err
+
+
+def test_train_refuses_an_observer_store_of_another_suite(
+    fake_run: Path, goal_store: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The observer control probes the same atoms on a second observer: a store of another suite is refused
+    before any work, even where another model observed it."""
+    import json
+    import shutil
+
+    from vlaprobe.configs.train import TrainConfig
+    from vlaprobe.probes.train import train_probes
+
+    other = tmp_path / "observer"
+    shutil.copytree(goal_store, other)
+    root = json.loads((other / "zarr.json").read_text())
+    root["attributes"]["model_id"] = "another-observer"
+    (other / "zarr.json").write_text(json.dumps(root))
+    cfg = TrainConfig(store=fake_run / "activations", observer_store=other, out=tmp_path / "p")
+    with pytest.raises(VlaprobeError, match=r"--store .* is from libero_spatial, --observer-store .* from libero_goal"):
+        train_probes(cfg)
+    argv = ["train", "--store", str(cfg.store), "--observer-store", str(other), "--out", str(cfg.out)]
+    code = main(argv)
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "libero_goal" in err and not cfg.out.exists()
+
+
+def test_hypotheses_refuse_a_store_of_another_suite(
+    fake_run: Path, goal_store: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code = main(["hypotheses", "--probes", str(fake_run / "probes"), "--store", str(goal_store)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "is from libero_goal, the probes in" in err and "from libero_spatial" in err
+
+
 def test_the_live_server_refuses_a_store_of_another_suite(fake_run: Path, goal_store: Path) -> None:
     from vlaprobe.live.serve import store_replays
 

@@ -54,6 +54,7 @@ def load_episodes(cfg: FailuresConfig) -> tuple[list[EpisodeData], str, int, Tok
     ``--token-model``, where the token distributions came from."""
     from vlaprobe.cognition.core import Cognition
     from vlaprobe.cognition.failure_scores import cognition_columns, run_cognition
+    from vlaprobe.cognition.monitor_inputs import check_store
     from vlaprobe.cognition.plan import TaskGoal, stored_task_goal
     from vlaprobe.cognition.readout import HEADS, ProbeReadout
     from vlaprobe.collection.defined import only_defined
@@ -69,6 +70,8 @@ def load_episodes(cfg: FailuresConfig) -> tuple[list[EpisodeData], str, int, Tok
             f"--layer {layer} is not a hidden state of {cfg.store} (0..{store.num_hidden_states - 1})"
         )
     readout = None if cfg.probes is None else ProbeReadout.load(cfg.probes, model_id=store.model_id)
+    if readout is not None:
+        check_store(store, readout, cfg.store)  # its suite, observer and atoms, as `vlaprobe cognition` checks
     observer = None if cfg.token_model is None else token_observer(store, cfg.token_model)
     matched = total = 0
     cogs: dict[TaskGoal, Cognition] = {}

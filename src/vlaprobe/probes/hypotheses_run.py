@@ -54,6 +54,7 @@ def run_curves(
 ) -> LayerCurves:
     """Balanced-accuracy curves of both heads on the probes' test episodes, with joint resamples: by default
     (None) the evaluation's (its bootstrap count and seed), else ``resamples`` drawn with ``seed``."""
+    from vlaprobe.configs.env import same_suite
     from vlaprobe.probes import ProbeSet
     from vlaprobe.probes.apply import apply_probes_to_rows
     from vlaprobe.probes.data import load_store
@@ -79,6 +80,7 @@ def run_curves(
     if store is None:
         raise VlaprobeError(f"{probes}/probes.json does not name its store; pass --store")
     data = load_store(store, heads=HEADS, layers=ps.layers)
+    same_suite(f"store {store}", data.suite, f"the probes in {probes}", ps.suite)
     test_keys = ev.split.test_episodes
     test = [data.episode_keys.index(k) for k in test_keys if k in data.episode_keys]
     if len(test) != len(test_keys):

@@ -23,6 +23,7 @@ import torch
 
 from vlaprobe.collection.store import read_meta
 from vlaprobe.configs.checks import check_train
+from vlaprobe.configs.env import same_suite
 from vlaprobe.configs.train import TrainConfig
 from vlaprobe.devices import resolve_device
 from vlaprobe.errors import VlaprobeError
@@ -75,6 +76,8 @@ def train_probes(cfg: TrainConfig) -> Path:
                 f"({metas[0]['model_id']!r}) as --store {cfg.store}: the control would compare the probes with "
                 "themselves; pass the store a second observer saw (e.g. control/activations of vlaprobe run)"
             )
+        suites = [str(m.get("suite") or "libero_spatial") for m in metas]  # stores before suites: spatial's
+        same_suite(f"--store {cfg.store}", suites[0], f"--observer-store {cfg.observer_store}", suites[1])
     with locked(out):
         data = load_store(cfg.store, heads=cfg.heads, layers=cfg.layers, success_only=cfg.split.success_only)
         observer = None
