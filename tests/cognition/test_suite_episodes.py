@@ -28,6 +28,7 @@ ONE_TASK: dict[SuiteName, int] = {
     "libero_object": 0,  # In(soup, basket)
     "libero_goal": 3,  # In(bowl, top drawer): the expert opens the drawer first
     "libero_10": 2,  # TurnOn(stove) & On(moka pot, stove): two conjuncts of two kinds
+    "libero_90": 0,  # Close(top drawer): the cognition's not(open) within LIBERO's middle band
 }
 POST, MAX_STEPS = 40, 600  # LIBERO's In holds while the object is still held; the expert lets go after
 NEGATED = {"Close": "Open", "TurnOff": "TurnOn"}

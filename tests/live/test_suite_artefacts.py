@@ -73,7 +73,9 @@ def test_failure_prediction_refuses_probes_of_another_suite(
     cfg = FailuresConfig(store=goal_store, probes=fake_run / "probes", out=tmp_path / "f")
     with pytest.raises(VlaprobeError, match=r"is from libero_goal, the probes in .* from libero_spatial"):
         load_episodes(cfg)
-    code = main(["failures", "--store", str(goal_store), "--probes", str(fake_run / "probes"), "--out", str(cfg.out)])
+    code = main(
+        ["failures", "--store", str(goal_store), "--probes", str(fake_run / "probes"), "--out", str(cfg.out)]
+    )
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "libero_goal" in err
 
@@ -95,7 +97,9 @@ def test_train_refuses_an_observer_store_of_another_suite(
     root["attributes"]["model_id"] = "another-observer"
     (other / "zarr.json").write_text(json.dumps(root))
     cfg = TrainConfig(store=fake_run / "activations", observer_store=other, out=tmp_path / "p")
-    with pytest.raises(VlaprobeError, match=r"--store .* is from libero_spatial, --observer-store .* from libero_goal"):
+    with pytest.raises(
+        VlaprobeError, match=r"--store .* is from libero_spatial, --observer-store .* from libero_goal"
+    ):
         train_probes(cfg)
     argv = ["train", "--store", str(cfg.store), "--observer-store", str(other), "--out", str(cfg.out)]
     code = main(argv)

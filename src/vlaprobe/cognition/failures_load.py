@@ -71,7 +71,9 @@ def load_episodes(cfg: FailuresConfig) -> tuple[list[EpisodeData], str, int, Tok
         )
     readout = None if cfg.probes is None else ProbeReadout.load(cfg.probes, model_id=store.model_id)
     if readout is not None:
-        check_store(store, readout, cfg.store)  # its suite, observer and atoms, as `vlaprobe cognition` checks
+        check_store(
+            store, readout, cfg.store
+        )  # its suite, observer and atoms, as `vlaprobe cognition` checks
     observer = None if cfg.token_model is None else token_observer(store, cfg.token_model)
     matched = total = 0
     cogs: dict[TaskGoal, Cognition] = {}
