@@ -70,10 +70,8 @@ def load_episodes(cfg: FailuresConfig) -> tuple[list[EpisodeData], str, int, Tok
             f"--layer {layer} is not a hidden state of {cfg.store} (0..{store.num_hidden_states - 1})"
         )
     readout = None if cfg.probes is None else ProbeReadout.load(cfg.probes, model_id=store.model_id)
-    if readout is not None:
-        check_store(
-            store, readout, cfg.store
-        )  # its suite, observer and atoms, as `vlaprobe cognition` checks
+    if readout is not None:  # its suite, observer and atoms, as `vlaprobe cognition` checks them
+        check_store(store, readout, cfg.store)
     observer = None if cfg.token_model is None else token_observer(store, cfg.token_model)
     matched = total = 0
     cogs: dict[TaskGoal, Cognition] = {}
