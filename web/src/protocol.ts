@@ -276,6 +276,9 @@ export interface Timings {
   total_ms: number;
 }
 /**
+ * 0/1 per atom, in ``episode_start.atoms`` order. An atom the episode leaves undefined
+ * (``episode_start.defined`` false) is sent as 0: a placeholder, not false.
+ *
  * This interface was referenced by `Protocol`'s JSON-Schema
  * via the `definition` "HeadBits".
  */
