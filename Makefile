@@ -1,5 +1,5 @@
 # The two commands of the README. Both run the (idempotent) setup first.
-.PHONY: setup run test lint bench ui
+.PHONY: setup setup-run run test lint bench ui
 
 # LIBERO's assets: $VLAPROBE_LIBERO_ASSETS when set, else a shared copy beside the checkout when there is one
 # (offline machines), else LIBERO downloads them itself on first use.
@@ -9,10 +9,15 @@ ifeq ($(origin VLAPROBE_LIBERO_ASSETS), undefined)
   endif
 endif
 
+# Everything: what running needs, and the tests' and linters' tools.
 setup:
 	@bash scripts/setup.sh
 
-run: setup
+# What `vlaprobe run` needs only (a no-op after `make setup`).
+setup-run:
+	@bash scripts/setup.sh --run
+
+run: setup-run
 	.venv/bin/vlaprobe run
 
 # The web UI's unit tests (vitest) run too where Node is installed (setup ran `npm ci` then).

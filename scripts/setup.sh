@@ -1,19 +1,33 @@
 #!/usr/bin/env bash
 # One-time (idempotent) setup: system renderer, virtual environment, torch, LIBERO, vlaprobe.
-# Re-runs are a no-op unless this script or pyproject.toml changed. Usage: bash scripts/setup.sh
+# Re-runs are a no-op unless this script or pyproject.toml changed.
+# Usage: bash scripts/setup.sh         everything: what running needs, and the tests' and linters' tools (make test)
+#        bash scripts/setup.sh --run   what `vlaprobe run` needs only (make run): no test tools, Chromium, Prolog, g++
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+LEVEL=dev
+if [[ "${1:-}" == "--run" ]]; then
+    LEVEL=run
+elif [[ -n "${1:-}" ]]; then
+    echo "setup: unknown option $1; use no option (everything) or --run (what vlaprobe run needs)" >&2
+    exit 2
+fi
 VENV=${VLAPROBE_VENV:-.venv}
 PY=${PYTHON:-python3}
-STAMP="$VENV/.vlaprobe-setup"
+STAMP="$VENV/.vlaprobe-setup"  # "<hash of this script and pyproject.toml> <level installed: run or dev>"
 want=$(cat scripts/setup.sh pyproject.toml | sha256sum | cut -c1-16)
-# The web UI: installs web/node_modules (npm ci) and rebuilds src/vlaprobe/live/ui when web/ changed. Without
-# Node the committed build is served; the script checks its own stamp, so it runs on every setup.
+# The web UI: installs web/node_modules (npm ci: the vitest tests need them) and rebuilds src/vlaprobe/live/ui
+# when web/ changed. Without Node the committed build is served; the script checks its own stamp, so it runs on
+# every setup. For a run, only a stale build needs Node.
 if command -v node >/dev/null && command -v npm >/dev/null; then
-    bash scripts/build_web.sh || echo "setup: building the web UI failed; the shipped build in src/vlaprobe/live/ui is served" >&2
+    if [[ "$LEVEL" == dev ]] || ! bash scripts/build_web.sh --check >/dev/null 2>&1; then
+        bash scripts/build_web.sh || echo "setup: building the web UI failed; the shipped build in src/vlaprobe/live/ui is served" >&2
+    fi
 fi
-if [[ -f "$STAMP" && "$(cat "$STAMP")" == "$want" ]]; then
+have_hash="" have_level=""
+[[ -f "$STAMP" ]] && { read -r have_hash have_level < "$STAMP" || true; }
+if [[ "$have_hash" == "$want" && ("$have_level" == dev || "$LEVEL" == run) ]]; then
     exit 0
 fi
 
@@ -24,9 +38,11 @@ fi
 # - g++: the C++ compiler torch.compile's CPU backend builds its kernels with (`vlaprobe finetune --compile`).
 need=()
 ldconfig -p 2>/dev/null | grep -q libOSMesa || need+=(libosmesa6)
-command -v swipl >/dev/null || need+=(swi-prolog-nox)
-[[ -x /usr/bin/chromium ]] || need+=(chromium)
-command -v g++ >/dev/null || need+=(g++)
+if [[ "$LEVEL" == dev ]]; then
+    command -v swipl >/dev/null || need+=(swi-prolog-nox)
+    [[ -x /usr/bin/chromium ]] || need+=(chromium)
+    command -v g++ >/dev/null || need+=(g++)
+fi
 if ((${#need[@]})); then
     if command -v apt-get >/dev/null && [[ $(id -u) == 0 ]]; then
         echo "setup: installing ${need[*]} (apt)"
@@ -95,7 +111,11 @@ fi
 "${PIP[@]}" --no-deps "${libero_pins[@]}"
 
 # pip lists the packages libero declares but never imports (hydra, wandb, robomimic...) as missing: expected.
-"${PIP[@]}" -e ".[dev,ray]"
+if [[ "$LEVEL" == dev ]]; then
+    "${PIP[@]}" -e ".[dev,ray]"
+else
+    "${PIP[@]}" -e .
+fi
 
-echo "$want" > "$STAMP"
+echo "$want $LEVEL" > "$STAMP"
 echo "setup: done ($VENV)"

@@ -178,11 +178,9 @@ def test_backtracking_columns_alone_give_the_same_probes(
     widths: list[int] = []
     data_change = lbfgs._Problem.data_change  # the line search's trial
 
-    def counting(
-        self: lbfgs._Problem, z: torch.Tensor, sig: torch.Tensor, delta: torch.Tensor
-    ) -> torch.Tensor:
+    def counting(self: lbfgs._Problem, z: torch.Tensor, *rest: torch.Tensor) -> torch.Tensor:
         widths.append(z.shape[-1])
-        return data_change(self, z, sig, delta)
+        return data_change(self, z, *rest)
 
     monkeypatch.setattr(lbfgs._Problem, "data_change", counting)
     *_, conv = lbfgs.fit_logistic(x, targets, l2, tol=1e-7, max_iter=300)
@@ -204,15 +202,42 @@ def test_the_line_search_measures_the_change_of_the_loss_not_a_difference_of_two
     prob = lbfgs._Problem(
         torch.zeros((1, n, 1)), y, None, torch.full((k,), 1.0 / n), torch.ones((1, k)), torch.zeros((1, 1, 1))
     )
+    # per column its own step: a column with |delta| > 1 on some rows sits next to columns without
+    step = torch.tensor([[1.0, 0.5, 1e-3, 2.0]])
     for scale in (1e-6, 1e-2, 3.0):  # tiny steps near a minimum, ordinary ones, and |delta| > 1
-        delta = scale * torch.randn((1, n, k), generator=gen)
+        dz = scale * torch.randn((1, n, k), generator=gen)
+        delta = dz * step[:, None]
         zd, dd = z.double(), delta.double()
         exact = (softplus(zd + dd) - softplus(zd) - y.double() * dd).sum(1) / n
-        ours = prob.data_change(z, torch.sigmoid(z), delta).double()
+        ydz, dz_max = prob.target_dot(dz), dz.abs().amax(1)
+        ours = prob.data_change(z, torch.sigmoid(z), dz, step, ydz, dz_max).double()
         np.testing.assert_allclose(ours, exact, rtol=1e-4)
         if scale == 1e-6:  # where the difference of two float32 losses is mostly round-off
             naive = (prob.data_loss(z + delta) - prob.data_loss(z)).double()
             assert (abs(naive - exact) > 0.05 * abs(exact)).any()
+
+
+def test_the_fit_does_not_depend_on_the_number_of_torch_threads() -> None:
+    """On a CPU the layers run side by side, one thread each: any thread count gives the same bits (large
+    enough that torch would split a reduction over rows between threads)."""
+    from vlaprobe.probes import lbfgs
+
+    gen = torch.Generator().manual_seed(0)
+    x = torch.randn((3, 4000, 16), generator=gen)
+    truth = torch.randn((16, 24), generator=gen)
+    targets = ((x[0] @ truth + torch.randn((4000, 24), generator=gen)) > 0).float()
+    l2 = torch.full((3, 24), 1e-3)
+    threads = torch.get_num_threads()
+    fits = []
+    try:
+        for n in (1, 3):
+            torch.set_num_threads(n)
+            fits.append(lbfgs.fit_logistic(x, targets, l2, tol=1e-6, max_iter=300))
+    finally:
+        torch.set_num_threads(threads)
+    (w1, b1, c1), (w3, b3, c3) = fits
+    assert torch.get_num_threads() == threads  # the count restored
+    assert torch.equal(w1, w3) and torch.equal(b1, b3) and np.array_equal(c1.iterations, c3.iterations)
 
 
 def test_a_per_feature_penalty_leaves_the_free_features_unpenalised(planted: dict) -> None:

@@ -24,7 +24,9 @@ The line search's Armijo test compares the change of the objective, computed per
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -69,6 +71,12 @@ class _Problem:
     l2: torch.Tensor  # (L, K)
     center: torch.Tensor  # (L, K or 1, H) each column's weighted feature mean
     penalized: torch.Tensor | None = None  # (H,) 1 for a penalised feature, 0 for a free one; None: all 1
+    share: torch.Tensor = field(init=False)  # (n, K) or (K,): set from weight and inv_n
+
+    def __post_init__(self) -> None:
+        # Each row's share of its column's mean loss: the row weight over the rows that count (one factor,
+        # so that every per-row pass of the loss and the gradient multiplies once).
+        self.share = self.inv_n if self.weight is None else self.weight * self.inv_n
 
     def penalized_part(self, w: torch.Tensor) -> torch.Tensor:
         """``w`` (..., H) with the free features' entries zeroed: what the L2 term sees."""
@@ -82,31 +90,42 @@ class _Problem:
 
     def data_loss(self, z: torch.Tensor) -> torch.Tensor:
         loss = F.softplus(z) - self.y * z
-        if self.weight is not None:
-            loss = loss * self.weight
-        return loss.sum(1) * self.inv_n
+        return loss.mul_(self.share).sum(1)
 
-    def data_change(self, z: torch.Tensor, sig: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
-        """``data_loss(z + delta) - data_loss(z)`` (``sig`` = sigmoid(z)), accurate relative to the change:
-        per row log1p(sig expm1(delta)) - y delta where |delta| < 1. Subtracting two float32 losses cannot
-        resolve the tiny decreases near the minimum of a strongly penalised problem, where the line search
-        then accepted steps that did not lower the objective and ran to the iteration cap."""
-        change = torch.expm1(delta.clamp(-1.0, 1.0)).mul_(sig).log1p_()  # exact where |delta| <= 1
-        small = delta.abs() < 1
-        if not bool(small.all()):  # (near the minimum the steps are small: no softplus pass at all)
-            change = torch.where(small, change, F.softplus(z + delta) - F.softplus(z))
-        change.sub_(self.y * delta)
-        if self.weight is not None:
-            change.mul_(self.weight)
-        return change.sum(1) * self.inv_n
+    def target_dot(self, dz: torch.Tensor) -> torch.Tensor:
+        """(L, K) the weighted mean of ``y dz`` over the rows: the linear part of the loss's change along
+        ``dz``, which :meth:`data_change` takes scaled by the step instead of a pass per trial."""
+        return (self.y * dz).mul_(self.share).sum(1)
+
+    def data_change(
+        self,
+        z: torch.Tensor,
+        sig: torch.Tensor,
+        dz: torch.Tensor,
+        step: torch.Tensor,
+        ydz: torch.Tensor,
+        dz_max: torch.Tensor,
+    ) -> torch.Tensor:
+        """``data_loss(z + step dz) - data_loss(z)`` (``sig`` = sigmoid(z), ``ydz`` = :meth:`target_dot`,
+        ``dz_max`` (L, K) each column's largest ``|dz|``), accurate relative to the change: per row
+        log1p(sig expm1(delta)) - y delta, delta = step dz, where |delta| < 1. Subtracting two float32 losses
+        cannot resolve the tiny decreases near the minimum of a strongly penalised problem, where the line
+        search then accepted steps that did not lower the objective and ran to the iteration cap. Where
+        |delta| >= 1 (only in the columns where ``step dz_max`` reaches 1) the softplus difference is exact
+        enough, and expm1 could overflow."""
+        delta = dz * step[:, None]
+        change = torch.expm1(delta).mul_(sig).log1p_()
+        large = torch.nonzero((step * dz_max >= 1).any(0)).flatten()
+        if len(large):  # (near the minimum the steps are small: no softplus pass at all)
+            zl, dl = z.index_select(2, large), delta.index_select(2, large)
+            exact = F.softplus(zl + dl).sub_(F.softplus(zl))
+            change.index_copy_(2, large, torch.where(dl.abs() < 1, change.index_select(2, large), exact))
+        return change.mul_(self.share).sum(1).sub_(step * ydz)
 
     def gradient(self, z: torch.Tensor, p: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(gradient at ``p``, sigmoid(z)): the line search from ``p`` reuses the latter."""
         sig = torch.sigmoid(z)
-        r = sig - self.y
-        if self.weight is not None:
-            r.mul_(self.weight)
-        r.mul_(self.inv_n)
+        r = (sig - self.y).mul_(self.share)
         g = torch.empty_like(p)
         torch.bmm(r.transpose(1, 2), self.x, out=g[:, :, :-1])
         g[:, :, -1] = r.sum(1)
@@ -170,6 +189,7 @@ def _line_search(
     that a backtracking column does not cost a pass over every column's logits.
     """
     dz = prob.logits(d)
+    ydz, dz_max = prob.target_dot(dz), dz.abs().amax(1)
     pw, dw = prob.penalized_part(p[:, :, :-1]), d[:, :, :-1]
     wd, dd = _dot(pw, dw), _dot(prob.penalized_part(dw), dw)
     pending = gd < 0
@@ -185,9 +205,12 @@ def _line_search(
             sub, zs, dzs = prob.select(cols), z.index_select(2, cols), dz.index_select(2, cols)
             sigs = sig.index_select(2, cols)
             wd, dd, f_ref, gd = wd[:, cols], dd[:, cols], f[:, cols], gd[:, cols]
+            ydz, dz_max = ydz[:, cols], dz_max[:, cols]
             step, pending = step[:, cols], pending[:, cols]
         # The change of the objective, not the objective: see _Problem.data_change.
-        change = sub.data_change(zs, sigs, step[:, None] * dzs) + 0.5 * sub.l2 * step * (2 * wd + step * dd)
+        change = sub.data_change(zs, sigs, dzs, step, ydz, dz_max) + 0.5 * sub.l2 * step * (
+            2 * wd + step * dd
+        )
         ok = pending & (change <= 1e-4 * step * gd)
         accepted[:, cols] = torch.where(ok, step, accepted[:, cols])
         f_new[:, cols] = torch.where(ok, f_ref + change, f_new[:, cols])
@@ -286,7 +309,7 @@ def _iterate(prob: _Problem, st: _State, tol: float, history: int, first: bool, 
         st.z = prob.logits(st.p)
         st.f = prob.data_loss(st.z) + prob.penalty(st.p)
     else:
-        st.z.add_(step[:, None] * dz)
+        st.z.addcmul_(step[:, None], dz)
         st.f = f_new
     g_new, st.sig = prob.gradient(st.z, st.p)
     yv = g_new - g
@@ -339,15 +362,16 @@ def fit_logistic(
     weights = torch.empty((num_layers, hidden, k))
     biases = torch.empty((num_layers, k))
     out = {name: np.empty((num_layers, k)) for name in ("iterations", "loss", "grad_norm", "converged")}
-    with torch.no_grad():
-        for start in range(0, num_layers, chunk):
-            part = slice(start, min(num_layers, start + chunk))
+    mask = None if penalized is None else penalized.to(x.device, torch.float32)
+
+    def solve(part: slice) -> None:
+        """Fit the layers ``part`` and store their results (each call writes its own rows only)."""
+        with torch.no_grad():  # (grad mode is per thread)
             xs = x[part]
             if weight is None:
                 center = xs.mean(1, keepdim=True)  # (L, 1, H)
             else:
                 center = torch.einsum("nk,lnh->lkh", weight, xs) / total.clamp_min(1e-12)[None, :, None]
-            mask = None if penalized is None else penalized.to(x.device, torch.float32)
             prob = _Problem(xs, y, weight, inv_n, l2[part].to(x.device, torch.float32), center, mask)
             p = torch.zeros((part.stop - part.start, k, hidden + 1), device=x.device)
             if init is None:
@@ -360,6 +384,10 @@ def fit_logistic(
             biases[part] = (p[:, :, -1] - _dot(center, p[:, :, :-1])).cpu()
             for name, v in zip(out, (iters, f, gmax, done), strict=True):
                 out[name][part] = v.cpu().numpy()
+
+    _for_each_part(
+        [slice(s, min(num_layers, s + chunk)) for s in range(0, num_layers, chunk)], solve, x.device
+    )
     conv = Convergence(
         iterations=out["iterations"].astype(np.int64),
         loss=out["loss"],
@@ -369,6 +397,23 @@ def fit_logistic(
         max_iter=max_iter,
     )
     return weights, biases, conv
+
+
+def _for_each_part(parts: list[slice], solve: Callable[[slice], None], device: torch.device) -> None:
+    """Run ``solve`` on every layer part. On a CPU with several torch threads the parts run side by side, one
+    thread each: a layer's problems are too small for torch to split one operation well across threads, and
+    the solver's Python steps of one layer overlap the other layers' arithmetic (torch releases the GIL)."""
+    threads = torch.get_num_threads()
+    if device.type != "cpu" or threads < 2 or len(parts) < 2:
+        for part in parts:
+            solve(part)
+        return
+    torch.set_num_threads(1)
+    try:
+        with ThreadPoolExecutor(min(threads, len(parts))) as pool:
+            list(pool.map(solve, parts))  # (list: a part's exception is raised here)
+    finally:
+        torch.set_num_threads(threads)
 
 
 def cold_bias(y: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
