@@ -23,7 +23,7 @@ KEYS = {
     "c_search": "ratio", "capture_overhead": "ratio", "cognition_step": "ms_per_step", "collect_throughput": "steps_per_s",
     "diverse_data": "wall_s", "expert_success": "success_rate", "finetune": "samples_per_s",
     "gpu": "parameters",
-    "init_variation": "varying", "label_speed": "label_ms_per_state", "live": "rate_ratio",
+    "init_variation": "varying", "label_speed": "label_ms_per_state", "lbfgs_threads": "speedup", "live": "rate_ratio",
     "placement_checks": "libero_fixed_inits", "probe_training": "speedup", "tiny_forward": "ms_per_step",
     "takeover_alarm": "alarm_ms_median",
     "web_ui": "steps",
