@@ -1,7 +1,8 @@
 """Observers side by side (issue 38, item 2): per probe folder and head, the best layer with its tied set, the
-task and task x time baselines, the conditional gain over task x time, the matched-steps AUC per family against
+shuffled-label control at that layer and the probe's gain over it, the task and task x time baselines, the
+conditional gain over task x time, the matched-steps AUC per family against
 the observer control, and the validation figure (the C search's cross-validated balanced accuracy on the
-training episodes), as one Markdown table per head.
+training episodes), as one Markdown table per head; then per atom family the conditional gain over task x time.
 
     python scripts/observer_table.py tiny-libero=runs/must-look/varied/probes-tiny-libero \
         tiny-libero-diverse=runs/must-look/varied/probes-diverse
@@ -82,6 +83,8 @@ def rows(name: str, h: HeadResult, layers: list[int]) -> list[str]:
         f"{b.value:.3f} [{b.low:.3f}, {b.high:.3f}]"
         if b.value is not None and b.low is not None and b.high is not None
         else "–",
+        _at(h.control[METRIC].layer, b.index) if h.control else "–",
+        _at(h.selectivity[METRIC].layer, b.index) if h.selectivity else "–",
         _at(h.task_baseline[METRIC].layer) if h.task_baseline else "–",
         _at(h.task_time_baseline[METRIC].layer) if h.task_time_baseline else "–",
         _conditional(h, layers),
@@ -92,10 +95,35 @@ def rows(name: str, h: HeadResult, layers: list[int]) -> list[str]:
     return ["| " + " | ".join(parts) + " |"]
 
 
+def family_rows(name: str, h: HeadResult, layers: list[int]) -> list[str]:
+    """Per atom family, the conditional gain over task x time at the head's best layer and the largest over the
+    layers, and how many layers' gains lie above 0 beyond their interval (item 4 of issue 38)."""
+    level = h.conditional_families.get("task_time")
+    if level is None:
+        return []
+    v, lo, hi = (arr(x) for x in (level.value, level.low, level.high))
+    out, b = [], h.best.index
+    for j, family in enumerate(h.families):
+        if np.all(np.isnan(v[:, j])):
+            continue
+        top = int(np.nanargmax(v[:, j]))
+        above = int(np.sum(lo[:, j] > 0))
+        cells = [name, family, f"{v[b, j]:+.3f} [{lo[b, j]:+.3f}, {hi[b, j]:+.3f}]",
+                 f"{v[top, j]:+.3f} [{lo[top, j]:+.3f}, {hi[top, j]:+.3f}] at layer {layers[top]}",
+                 f"{above} of {len(layers)}"]  # fmt: skip
+        out.append("| " + " | ".join(cells) + " |")
+    return out
+
+
+FAMILY_HEADER = (
+    "| observer | family | conditional gain over task x time, best layer | largest | layers above 0 |\n"
+    "| --- | --- | --- | --- | --- |"
+)
+
 HEADER = (
-    "| observer | best layer {tied} | balanced accuracy | task baseline | task x time baseline | conditional gain over "
+    "| observer | best layer {tied} | balanced accuracy | shuffled labels | probe - shuffled | task baseline | task x time baseline | conditional gain over "
     "task x time (best) | matched AUC grasped, probe vs control | matched AUC on(bowl, plate) | validation (CV) |\n"
-    "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+    "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
 )
 
 
@@ -117,6 +145,10 @@ def main(argv: list[str] | None = None) -> int:
         for name, ev in evals:
             if head in ev.heads:
                 print("\n".join(rows(name, ev.heads[head], ev.layers)))
+        print(f"\n{head} head, per atom family\n\n{FAMILY_HEADER}")
+        for name, ev in evals:
+            if head in ev.heads:
+                print("\n".join(family_rows(name, ev.heads[head], ev.layers)))
     return 0
 
 

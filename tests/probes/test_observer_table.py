@@ -32,7 +32,7 @@ def probes(tmp_path_factory: pytest.TempPathFactory) -> Path:
     )
     noise = torch.randn(data.hidden.shape, generator=torch.Generator().manual_seed(0)).to(data.hidden.dtype)
     control = dataclasses.replace(data, hidden=noise, model_id="untrained")
-    cfg = TrainConfig(bootstrap=50, auprc_bootstrap=0, shuffled_control=False, conditional=True)
+    cfg = TrainConfig(bootstrap=50, auprc_bootstrap=0, shuffled_permutations=2, conditional=True)
     return train_on_data(data, cfg, tmp_path_factory.mktemp("probes"), observer=control)
 
 
@@ -48,6 +48,17 @@ def test_rows_quote_the_evaluation(probes: Path, capsys: pytest.CaptureFixture[s
         assert f"{h.best.layer} {{" in row
         tt = h.task_time_baseline["balanced_accuracy"].layer  # type: ignore[index]
         assert f"{float(arr(tt.value).reshape(-1)[0]):.3f}" in row
+        assert h.control is not None and h.selectivity is not None
+        i = h.best.index
+        for part in (h.control, h.selectivity):
+            assert f"{float(arr(part['balanced_accuracy'].layer.value)[i]):.3f}" in row
+        assert h.families
+        families = h.conditional_families["task_time"]
+        for j, family in enumerate(h.families):
+            at_best = float(arr(families.value)[i, j])
+            if at_best == at_best:  # a family whose atoms are all undefined has no row
+                frow = next(line for line in out.splitlines() if line.startswith(f"| a | {family} |"))
+                assert f"{at_best:+.3f}" in frow
         gain = h.conditional_task_time
         assert gain is not None and f"{float(arr(gain.gain.value).max()):.3f}" in row
 
