@@ -13,7 +13,7 @@ optimistic); the atom
 families at the best layer; and what the probes must beat there: the majority (0.5 wherever defined) and the
 time-only baseline (normalised-time decile -> majority) fit on the source store's rows. The task baselines
 cannot transfer: the target's tasks are not the source's. Next to it, the source evaluation's figure over the
-same atoms on its own held-out episodes. The controls (:mod:`vlaprobe.probes.cross_suite_controls`): probes fit on
+same atoms on its own held-out episodes. The controls (:mod:`vlaprobe.probes.cross_suite_controls`, :mod:`~vlaprobe.probes.cross_suite_observer`): probes fit on
 the source rows with shuffled labels, and the control observer's probes on the target store it observed. Saved
 probes are applied by
 :func:`~vlaprobe.probes.apply.apply_probes_to_rows`, scored by :mod:`vlaprobe.probes.metrics` and resampled by
@@ -155,7 +155,8 @@ def score_head(
 def cross_suite(cfg: CrossSuiteConfig) -> CrossSuite:
     """Score the probes of ``cfg.probes`` on ``cfg.store`` (see the module docstring)."""
     from vlaprobe.collection.store import read_store_meta
-    from vlaprobe.probes.cross_suite_controls import check_control, observer_control, shuffled_control
+    from vlaprobe.probes.cross_suite_controls import shuffled_control
+    from vlaprobe.probes.cross_suite_observer import check_control, observer_control
     from vlaprobe.probes.data import load_store
 
     if cfg.bootstrap < 10:

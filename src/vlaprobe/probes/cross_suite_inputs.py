@@ -209,3 +209,22 @@ def source_store(cfg: CrossSuiteConfig, probes: ProbeSet) -> Path:
             "trained on"
         )
     return Path(path)
+
+
+UNDEFINED = Estimate(None, None, None)
+
+
+def at_layer(curve: tuple[np.ndarray, np.ndarray], layers: list[int], layer: int) -> tuple[float, np.ndarray]:
+    """A layer curve's value and resamples at ``layer`` (NaN where the curve lacks it)."""
+    value, res = curve
+    if layer not in layers:
+        return float("nan"), np.full(res.shape[0], np.nan)
+    i = layers.index(layer)
+    return float(value[i]), res[:, i]
+
+
+def difference(a: tuple[float, np.ndarray], b: tuple[float, np.ndarray]) -> Estimate:
+    """``a - b`` paired over the same resamples (undefined where either is)."""
+    if not (np.isfinite(a[0]) and np.isfinite(b[0])):
+        return UNDEFINED
+    return est(a[0] - b[0], a[1] - b[1])
