@@ -47,14 +47,17 @@ if TYPE_CHECKING:
     from vlaprobe.probes.trainer import LinearProbes
 
 
-def _saved_config(probes: ProbeSet) -> tuple[ProbeConfig, Path]:
+HINT = "retrain the probes with vlaprobe train, or pass --no-shuffled-control"
+
+
+def _saved_config(probes: ProbeSet) -> ProbeConfig:
+    """The probe configuration the saved probes were trained with (on this machine's device)."""
     from vlaprobe.configs.train import ProbeConfig
     from vlaprobe.files import from_json
 
     where = Path(probes.where) / "probes.json"
-    hint = "retrain the probes with vlaprobe train, or pass --no-shuffled-control"
-    cfg = from_json(ProbeConfig, dict(probes.meta.config.get("probe") or {}), where, hint)
-    return replace(cfg, device="auto"), where
+    cfg = from_json(ProbeConfig, dict(probes.meta.config.get("probe") or {}), where, HINT)
+    return replace(cfg, device="auto")
 
 
 def source_rows(probes: ProbeSet, data: ProbeData) -> tuple[np.ndarray, str]:
@@ -67,12 +70,11 @@ def source_rows(probes: ProbeSet, data: ProbeData) -> tuple[np.ndarray, str]:
     if probes.refit_on_all:
         return np.arange(data.num_steps), "every row of the source store (the saved probes were refit on all)"
     where = Path(probes.where) / "probes.json"
-    hint = "retrain the probes with vlaprobe train, or pass --no-shuffled-control"
-    split = from_json(SplitConfig, dict(probes.meta.config.get("split") or {}), where, hint)
+    split = from_json(SplitConfig, dict(probes.meta.config.get("split") or {}), where, HINT)
     folds = make_folds(data.episode_tasks, split, int(probes.meta.seeds.get("split", 0)))
     if len(folds) != 1:
         raise VlaprobeError(f"{where} says the probes were fit on one training split, but its split has "
-                            f"{len(folds)} folds; {hint}")  # fmt: skip
+                            f"{len(folds)} folds; {HINT}")  # fmt: skip
     test = sorted(data.episode_keys[i] for i in folds[0].test)
     if (Path(probes.where) / "evaluation.json").is_file():
         held = sorted(read_evaluation(probes.where).split.test_episodes)
@@ -141,7 +143,7 @@ def fit_shuffled(
     from vlaprobe.probes.evaluate import shuffled_labels
     from vlaprobe.probes.trainer import fit_probes
 
-    probe_cfg, _ = _saved_config(probes)
+    probe_cfg = _saved_config(probes)
     split = probes.meta.config.get("split") or {}
     success_only = bool(split.get("success_only"))
     data = load_store(src, heads=list(atoms), layers=layers, success_only=success_only)
