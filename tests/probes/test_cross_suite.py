@@ -173,7 +173,7 @@ def test_command_writes_the_versioned_file_and_prints_the_table(
     assert "(libero_spatial) on store" in text and "majority 0.500" in text and f"written to {out}" in text
     saved = read_cross_suite(out)
     assert saved.heads["object"].atoms == BOTH["object"] and saved.resamples == 20
-    assert json.loads(out.read_text())["format_version"] == 1
+    assert json.loads(out.read_text())["format_version"] == 2
     out.write_text(json.dumps({"format": "vlaprobe-cross-suite", "format_version": 9}))
     with pytest.raises(VlaprobeError, match="format version 9"):
         read_cross_suite(out)

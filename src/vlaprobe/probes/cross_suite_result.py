@@ -1,15 +1,17 @@
 """The result of ``vlaprobe cross-suite`` (``cross_suite_<suite>.json``): dataclasses, one writer, one reader.
 
-Format version 1: :class:`CrossSuite` with ``format`` and ``format_version``. Figures are balanced accuracies
+Format version 2: :class:`CrossSuite` with ``format`` and ``format_version``. Figures are balanced accuracies
 averaged over the shared atoms defined (both classes present) on the target store's scored rows, with 95%
 percentile intervals over resamples of the target store's episodes (:mod:`vlaprobe.probes.bootstrap`); None
-where undefined.
+where undefined. Version 2 adds the controls: per head the shuffled-label control (``shuffled``) and the
+observer control (``observer``), and at the top how they were made (``shuffled``, ``control``). A version-1
+file (without them) is read with no control.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from vlaprobe.files import JsonObject, from_json, read_versioned, write_atomic
@@ -17,7 +19,9 @@ from vlaprobe.probes.bootstrap import Estimate
 from vlaprobe.probes.ties import describe
 
 FORMAT = "vlaprobe-cross-suite"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READS = (1, 2)
+"""Format versions :func:`read_cross_suite` reads (1: without the controls)."""
 
 
 @dataclass(frozen=True)
@@ -28,6 +32,66 @@ class FamilyFigure:
     atoms: int
     """Shared atoms of the family defined (both classes) on the target rows: those averaged."""
     balanced_accuracy: Estimate
+
+
+@dataclass(frozen=True)
+class ShuffledAt:
+    """The shuffled-label control at one layer: probes fit on the source rows with permuted labels."""
+
+    layer: int
+    c: float
+    """The inverse L2 strength they were fit with: the saved probes' at this layer."""
+    balanced_accuracy: Estimate
+    """Mean over the permutations of the balanced accuracy on the target rows (mean over the scored atoms)."""
+    spread: float | None
+    """Standard deviation over the permutations of that figure (None with one permutation)."""
+    probe_minus_shuffled: Estimate
+    """The probes minus the control at this layer, paired over the same resamples."""
+
+
+@dataclass(frozen=True)
+class ObserverTransfer:
+    """The control observer's probes (trained on the untrained network's source store) scored on the target
+    store that network observed: the same episodes, so every difference is paired over the same resamples."""
+
+    atoms: list[str]
+    """Shared atoms both probe folders probe (the figures' and the differences' atoms)."""
+    scored: int
+    layers: list[int]
+    balanced_accuracy: list[Estimate]
+    best_layer: int
+    """Chosen on the target's episodes: optimistic, as the probes' own ``best_layer``."""
+    tied: list[int]
+    source_layer: int
+    """The control probes' own best layer, chosen on the source suite."""
+    at_source_layer: Estimate
+    probe_minus_observer: Estimate
+    """The probes at their source layer minus the control's at its source layer (both chosen without the
+    target), over ``atoms``."""
+    best_minus_best: Estimate
+    """The probes' best layer on the target minus the control's best (both chosen on the target)."""
+
+
+@dataclass(frozen=True)
+class ShuffledInfo:
+    """How the shuffled-label control was made."""
+
+    permutations: int
+    seed: int
+    """Seed of the permutations (the probes' ``shuffle`` seed, as ``vlaprobe train`` drew them)."""
+    rows: str
+    """Which source rows the permuted probes were fit on."""
+    c: str
+    """Where their C came from."""
+
+
+@dataclass(frozen=True)
+class ControlInfo:
+    """The observer control's inputs."""
+
+    probes: str
+    store: str
+    model_id: str
 
 
 @dataclass(frozen=True)
@@ -65,6 +129,11 @@ class HeadTransfer:
     source_split: str
     """How the source evaluation held episodes out ("" without one)."""
     families: list[FamilyFigure]
+    shuffled: list[ShuffledAt] = field(default_factory=list)
+    """The shuffled-label control at ``source_layer`` and at ``best_layer`` (once when they are one; empty
+    without the control or in a version-1 file)."""
+    observer: ObserverTransfer | None = None
+    """The observer control (None without ``--control-probes``)."""
 
 
 @dataclass(frozen=True)
@@ -87,6 +156,8 @@ class CrossSuite:
     heads: dict[str, HeadTransfer]
     unshared: dict[str, list[str]]
     """Per head, the probed atoms the target vocabulary lacks (not scored)."""
+    shuffled: ShuffledInfo | None = None
+    control: ControlInfo | None = None
 
 
 def default_path(probes: str | Path, target_suite: str) -> Path:
@@ -108,7 +179,7 @@ def read_cross_suite(path: str | Path) -> CrossSuite:
     version."""
     path = Path(path)
     hint = "run vlaprobe cross-suite again"
-    data, _ = read_versioned(path, FORMAT, "cross-suite result", (FORMAT_VERSION,), hint)
+    data, _ = read_versioned(path, FORMAT, "cross-suite result", READS, hint)
     data = {k: v for k, v in data.items() if k not in ("format", "format_version")}
     return from_json(CrossSuite, data, path, hint)
 
@@ -120,6 +191,32 @@ def _fmt(e: Estimate, sign: bool = False) -> str:
     if e.low is None or e.high is None:
         return format(e.value, spec)
     return f"{format(e.value, spec)} [{format(e.low, spec)}, {format(e.high, spec)}]"
+
+
+def _control_lines(r: CrossSuite, h: HeadTransfer) -> list[str]:
+    """The head's controls: the shuffled-label probes per layer, the control observer's probes."""
+    lines = []
+    for s in h.shuffled:
+        spread = (
+            ""
+            if s.spread is None
+            else f" (sd {s.spread:.3f} over {r.shuffled.permutations if r.shuffled else '?'})"
+        )
+        lines.append(
+            f"          shuffled labels at layer {s.layer} (C {s.c:g}): {_fmt(s.balanced_accuracy)}{spread}; "
+            f"probe minus shuffled {_fmt(s.probe_minus_shuffled, sign=True)}"
+        )
+    o = h.observer
+    if o is not None:
+        best = o.balanced_accuracy[o.layers.index(o.best_layer)]
+        model = r.control.model_id if r.control else "control"
+        lines.append(
+            f"          control observer {model}: at its own best layer {o.source_layer}: "
+            f"{_fmt(o.at_source_layer)}; on {r.target_suite}, {describe(o.best_layer, o.tied)}: {_fmt(best)}; "
+            f"probe minus control (own layers) {_fmt(o.probe_minus_observer, sign=True)}, best minus best "
+            f"{_fmt(o.best_minus_best, sign=True)} ({len(o.atoms)} atoms)"
+        )
+    return lines
 
 
 def table_lines(r: CrossSuite) -> list[str]:
@@ -139,6 +236,7 @@ def table_lines(r: CrossSuite) -> list[str]:
             f"best minus time {_fmt(h.best_minus_time, sign=True)}; on {r.source_suite} at layer {h.best_layer} "
             f"{source}"
         )
+        lines.extend(_control_lines(r, h))
         for f in h.families:
             lines.append(f"          {f.family:<22} {f.atoms:>3} atoms  {_fmt(f.balanced_accuracy)}")
     for head, atoms in r.unshared.items():

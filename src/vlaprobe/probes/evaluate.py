@@ -105,13 +105,9 @@ def cross_fit(
         blocks = [targets]
         masks = [] if defined is None else [defined]
         for _ in range(permutations):
-            order = rng.permutation(train_rows)
-            shuffled = np.zeros_like(targets)
-            shuffled[train_rows] = targets[order]
+            shuffled, mask = shuffled_labels(targets, train_rows, rng, defined)
             blocks.append(shuffled)
-            if defined is not None:
-                mask = np.zeros_like(defined)
-                mask[train_rows] = defined[order]
+            if mask is not None:
                 masks.append(mask)
         fitted = fit_probes(
             data.hidden,
@@ -150,6 +146,23 @@ def cross_fit(
         np.asarray(column_head),
         defined=None if defined is None else defined[eval_rows],
     )
+
+
+def shuffled_labels(
+    targets: np.ndarray, train_rows: np.ndarray, rng: np.random.Generator, defined: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """One shuffled-label control's targets: the label rows of ``train_rows`` permuted across those steps
+    (whole rows, so the atoms' co-occurrence is kept; zeros elsewhere), with the ``defined`` mask carried
+    along (None without one). One draw of ``rng`` per call: ``vlaprobe train`` and ``vlaprobe cross-suite``
+    draw the same permutations from the same seed and rows."""
+    order = rng.permutation(train_rows)
+    shuffled = np.zeros_like(targets)
+    shuffled[train_rows] = targets[order]
+    if defined is None:
+        return shuffled, None
+    mask = np.zeros_like(defined)
+    mask[train_rows] = defined[order]
+    return shuffled, mask
 
 
 def column_groups(
