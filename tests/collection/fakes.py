@@ -52,6 +52,7 @@ class FakeEnv:
         self.instruction = f"put the bowl on the plate ({task})"
         self.num_init_states = NUM_INITS
         self.scene, self.goal, self.goal_conjunction = self.SCENES.get(task, SCENE), GOAL, GOAL_CONJUNCTION
+        self.perturb_goal = GOAL
         self.labeler = Labeler(self.scene, GOAL)
         self.delay = float(os.environ.get("FAKE_STEP_SECONDS", "0"))
 

@@ -222,7 +222,7 @@ class Worker:
         spec = PerturbSpec.parse(self.cfg.perturb)
         supervisor = self._supervisor(env, unit, seed)
         control = EpisodeControl() if spec.any or supervisor is not None else None
-        perturber = Perturber(spec, seed, env.scene, env.goal) if spec.any else None  # checked up front
+        perturber = _perturber(spec, seed, env)
         records = self.runner.run(
             env,
             self.cfg.driver,
@@ -284,13 +284,24 @@ class Worker:
         self.runner.close()
 
 
+def _perturber(spec: PerturbSpec, seed: int, env: TaskEnv) -> Perturber | None:
+    """The episode's perturber (None without ``--perturb``), acting on ``env.perturb_goal``."""
+    if not spec.any:
+        return None
+    if env.perturb_goal is None:  # check_tasks_plannable refuses such tasks before a collection
+        raise VlaprobeError(
+            f"--perturb: task {env.task_index}'s goal carries no one object onto or into another"
+        )
+    return Perturber(spec, seed, env.scene, env.perturb_goal)
+
+
 class _Outcome:
     """What the worker learns from an episode's records besides their columns: its success step, the
     perturbations (handed to ``control`` as they come due) and the time spent labelling."""
 
     def __init__(self, env: TaskEnv, perturber: Perturber | None, control: EpisodeControl | None) -> None:
         self.perturber, self.control = perturber, control
-        goal = getattr(env, "goal", None)  # a pick-and-place goal; perturbations need one (_pick_place)
+        goal = env.perturb_goal  # the carried object's grasp: when a drop may come
         actions = env.labeler.vocabulary.action_atoms
         self.grasp_col = actions.index(atom("grasped", goal.pick)) if goal is not None else -1
         self.codes: list[int] = []

@@ -43,6 +43,9 @@ class TaskEnv(Protocol):
     """The task's pick-and-place goal (LIBERO-spatial; absent where the goal is not one ``On`` between objects)."""
     goal_conjunction: GoalConjunction
     """The task's BDDL goal, every conjunct."""
+    perturb_goal: Goal | None
+    """The object ``--perturb`` drops, displaces or knocks off and where it goes
+    (:func:`~vlaprobe.envs.bddl_scene.carried_object_goal`); None where the goal carries no one object."""
     labeler: Labeler
     """The ground-truth detectors of this scene: ``labeler(world_state) -> (object bits, action bits)``."""
 

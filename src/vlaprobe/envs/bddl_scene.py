@@ -188,3 +188,22 @@ def pick_place_goal(goal: GoalConjunction, scene: Scene) -> Goal | None:
     ):
         return None
     return Goal(pick=first.args[0], place=first.args[1])
+
+
+def carried_object_goal(goal: GoalConjunction, scene: Scene) -> Goal | None:
+    """The :class:`~vlaprobe.symbols.Goal` the perturbations of ``--perturb`` act on (what to drop, displace or
+    knock off, and where it goes): a goal of one ``On(a, b)`` between objects of the scene (LIBERO-spatial), or
+    one ``In(a, r)`` where ``r`` is the receptacle region of a movable object (LIBERO-object's basket), its
+    place then that object. None for any other goal (drawers, fixtures' regions, several conjuncts). Only the
+    perturbation path uses it; the labeler keeps :func:`pick_place_goal`."""
+    on = pick_place_goal(goal, scene)
+    if on is not None or len(goal.conjuncts) != 1:
+        return on
+    first = goal.conjuncts[0]
+    what, where = first.args[0], first.args[1]
+    holder = scene.region_parent.get(where, "")
+    if first.predicate != "In" or what not in scene.pickupable or where not in scene.receptacles:
+        return None
+    if holder not in scene.pickupable or holder == what:
+        return None
+    return Goal(pick=what, place=holder)

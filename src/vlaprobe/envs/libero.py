@@ -16,7 +16,7 @@ import numpy as np
 
 from vlaprobe.configs.env import EnvConfig, SuiteName
 from vlaprobe.envs.base import Observation
-from vlaprobe.envs.bddl_scene import pick_place_goal, scene_from_problem, task_bddl
+from vlaprobe.envs.bddl_scene import carried_object_goal, pick_place_goal, scene_from_problem, task_bddl
 from vlaprobe.envs.libero_world import CAMERA, SceneIndex
 from vlaprobe.envs.placements import (
     MAX_DRAWS,
@@ -134,6 +134,8 @@ class LiberoTaskEnv:
         pick_place = pick_place_goal(problem.goal, self.scene)
         if pick_place is not None:  # absent otherwise: collection, the expert and the cognition need one
             self.goal: Goal = pick_place
+        self.perturb_goal = carried_object_goal(problem.goal, self.scene)
+        """What ``--perturb`` acts on (the perturbation path only; the labeler keeps ``pick_place``)."""
         self.labeler = Labeler(self.scene, pick_place)
         self._index = SceneIndex(self._sim_env, self.scene)
         self._reference = None

@@ -81,8 +81,9 @@ def plan_steps(goal: GoalConjunction, scene: Scene) -> list[Step]:
 
 def check_tasks_plannable(env: EnvConfig, tasks: tuple[int, ...], expert: bool, perturb: bool) -> None:
     """Before a collection: with the expert (``expert``) every task's goal must have skills, and ``--perturb``
-    (``perturb``) needs a pick-and-place goal (what to drop, displace or knock off); one line names the task."""
-    from vlaprobe.envs.bddl_scene import pick_place_goal, task_bddl, task_scene
+    (``perturb``) needs a goal that carries one object onto or into another (what to drop, displace or knock
+    off: :func:`~vlaprobe.envs.bddl_scene.carried_object_goal`); one line names the task."""
+    from vlaprobe.envs.bddl_scene import carried_object_goal, task_bddl, task_scene
 
     for task in tasks:
         problem = task_bddl(env.suite, task)
@@ -92,10 +93,10 @@ def check_tasks_plannable(env: EnvConfig, tasks: tuple[int, ...], expert: bool, 
                 plan_steps(problem.goal, scene)
         except VlaprobeError as exc:
             raise VlaprobeError(f"{env.suite} task {task}: {exc}; leave it out of --tasks") from None
-        if perturb and pick_place_goal(problem.goal, scene) is None:
+        if perturb and carried_object_goal(problem.goal, scene) is None:
             raise VlaprobeError(
-                f"--perturb needs a pick-and-place goal (one On(a, b) between objects); {env.suite} task {task}'s "
-                f"goal is {problem.goal}: collect it without --perturb"
+                f"--perturb needs a goal of one On(a, b) between objects or one In(a, b) into a movable object's "
+                f"region (a basket); {env.suite} task {task}'s goal is {problem.goal}: collect it without --perturb"
             )
 
 
