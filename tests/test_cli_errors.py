@@ -413,8 +413,9 @@ def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.Captu
             "libero_10 task 9: the scripted expert has no skill for the goal conjunct Close(microwave_1)",
         ),
         (
-            ["collect", "--suite", "libero_object", "--perturb", "drop=0.5", "--out", "OUT"],
-            "--perturb needs a pick-and-place goal (one On(a, b) between objects); libero_object task 0's",
+            ["collect", "--suite", "libero_goal", "--tasks", "3", "--perturb", "drop=0.5", "--out", "OUT"],
+            "--perturb needs a goal of one On(a, b) between objects or one In(a, b) into a movable object's "
+            "region (a basket); libero_goal task 3's goal is In(akita_black_bowl_1,wooden_cabinet_1_top_region)",
         ),
         (
             ["run", "--suite", "libero_90", "--out", "OUT"],

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from vlaprobe.configs.env import SUITES
+from vlaprobe.configs.env import SUITES, EnvConfig
 from vlaprobe.envs.bddl_scene import (
     in_regions,
     pick_place_goal,
@@ -19,6 +19,8 @@ from vlaprobe.envs.bddl_scene import (
 from vlaprobe.envs.libero import suite_tasks
 from vlaprobe.envs.libero_source import category_key, object_facts, problem_facts
 from vlaprobe.envs.spatial_scene import SPATIAL_GOAL, SPATIAL_SCENE
+from vlaprobe.errors import VlaprobeError
+from vlaprobe.experts.planner import check_tasks_plannable
 from vlaprobe.symbols import Articulation, build_vocabulary
 from vlaprobe.symbols.goals import Conjunct
 
@@ -132,3 +134,14 @@ def test_every_task_of_every_suite_reads(suite: str) -> None:
         for name in problem.goal.names:
             assert name in scene.tabletop or name in scene.regions or name in regions, (suite, task, name)
         assert len(scene.close_articulation) == len(scene.openable)
+
+
+def test_perturb_check_accepts_every_basket_task_and_refuses_a_drawer() -> None:
+    """``--perturb`` on LIBERO-object (``In(item, basket_1_contain_region)``) passes the up-front check; the
+    goal suite's drawer task (``In(bowl, wooden_cabinet_1_top_region)``) is still refused, naming it."""
+    tasks = tuple(t for t, _ in suite_tasks("libero_object"))
+    check_tasks_plannable(EnvConfig(suite="libero_object"), tasks, expert=True, perturb=True)
+    with pytest.raises(
+        VlaprobeError, match=r"libero_goal task 3's goal is In\(akita_black_bowl_1,wooden_cab"
+    ):
+        check_tasks_plannable(EnvConfig(suite="libero_goal"), (3,), expert=True, perturb=True)

@@ -200,7 +200,11 @@ def carried_object_goal(goal: GoalConjunction, scene: Scene) -> Goal | None:
     if on is not None or len(goal.conjuncts) != 1:
         return on
     first = goal.conjuncts[0]
-    if first.predicate != "In" or first.args[0] not in scene.pickupable or first.args[1] not in scene.receptacles:
+    if (
+        first.predicate != "In"
+        or first.args[0] not in scene.pickupable
+        or first.args[1] not in scene.receptacles
+    ):
         return None
     what, holder = first.args[0], scene.region_parent.get(first.args[1], "")
     if holder not in scene.pickupable or holder == what:

@@ -1,0 +1,63 @@
+"""What ``--perturb`` acts on (``carried_object_goal``), on hand-made scenes and goals: one ``On`` between
+objects or one ``In`` into a movable object's region (a basket); drawers, fixtures' regions and several
+conjuncts stay refused. The labeler's ``pick_place_goal`` is unchanged (no ``In``)."""
+
+from __future__ import annotations
+
+from vlaprobe.envs.bddl_scene import carried_object_goal, pick_place_goal
+from vlaprobe.symbols import Articulation, Goal, Scene
+from vlaprobe.symbols.goals import Conjunct, GoalConjunction
+
+BASKET = Scene(
+    pickupable=("ketchup_1", "basket_1", "milk_1"),
+    fixtures=(),
+    containers=(),
+    container_articulation=(),
+    region_parent={"basket_1_contain_region": "basket_1"},
+    receptacles=("basket_1_contain_region",),
+)
+KITCHEN = Scene(
+    pickupable=("akita_black_bowl_1", "plate_1"),
+    fixtures=("wooden_cabinet_1", "microwave_1"),
+    containers=("wooden_cabinet_1_top_region",),
+    container_articulation=(Articulation(-0.14, below=True),),
+    region_parent={
+        "wooden_cabinet_1_top_region": "wooden_cabinet_1",
+        "microwave_1_heating_region": "microwave_1",
+    },
+    receptacles=("microwave_1_heating_region",),
+)
+
+
+def goal(*conjuncts: tuple[str, tuple[str, ...]]) -> GoalConjunction:
+    return GoalConjunction(tuple(Conjunct(p, a) for p, a in conjuncts))  # type: ignore[arg-type]
+
+
+def test_in_a_basket_is_carried_into_the_basket_object() -> None:
+    into = goal(("In", ("ketchup_1", "basket_1_contain_region")))
+    assert carried_object_goal(into, BASKET) == Goal(pick="ketchup_1", place="basket_1")
+    assert pick_place_goal(into, BASKET) is None  # the labeler's goal stays as it was
+
+
+def test_on_between_objects_is_the_pick_place_goal() -> None:
+    on = goal(("On", ("akita_black_bowl_1", "plate_1")))
+    assert (
+        carried_object_goal(on, KITCHEN)
+        == pick_place_goal(on, KITCHEN)
+        == Goal("akita_black_bowl_1", "plate_1")
+    )
+
+
+def test_drawers_fixtures_and_conjunctions_are_refused() -> None:
+    refused = [
+        goal(("In", ("akita_black_bowl_1", "wooden_cabinet_1_top_region"))),  # a drawer
+        goal(("In", ("akita_black_bowl_1", "microwave_1_heating_region"))),  # a fixture's receptacle
+        goal(("Open", ("wooden_cabinet_1_top_region",))),
+        goal(("In", ("basket_1", "basket_1_contain_region"))),  # the basket into itself
+    ]
+    for g in refused:
+        assert carried_object_goal(g, KITCHEN if "basket" not in str(g) else BASKET) is None, g
+    two = goal(
+        ("In", ("ketchup_1", "basket_1_contain_region")), ("In", ("milk_1", "basket_1_contain_region"))
+    )
+    assert carried_object_goal(two, BASKET) is None
