@@ -1,5 +1,5 @@
 """Recovery on real LIBERO: the expert re-grasps after a drop, re-plans after a displacement and picks a
-knocked-off bowl up again; the atoms the perturbations hit turn false and true again."""
+knocked-off object up again (LIBERO-spatial and LIBERO-object); the atoms the perturbations hit turn false and true again."""
 
 from __future__ import annotations
 
@@ -7,23 +7,34 @@ import numpy as np
 import pytest
 from tests.collection.fakes import FakePolicy
 
-from vlaprobe.configs.env import EnvConfig
+from vlaprobe.configs.env import EnvConfig, SuiteName
 from vlaprobe.configs.policy import PolicyConfig
 from vlaprobe.envs.libero import LiberoTaskEnv
 from vlaprobe.rollout import EpisodeControl, ExpertDriver, run_episode
-from vlaprobe.rollout.perturb import Perturber, PerturbSpec
+from vlaprobe.rollout.perturb import KINDS, Perturber, PerturbSpec
 from vlaprobe.symbols.vocabulary import atom
 
 pytestmark = pytest.mark.libero
 
 
-def test_expert_recovers_from_every_perturbation_on_a_sampled_layout() -> None:
-    with LiberoTaskEnv(0, EnvConfig(image_size=64, inits="sampled")) as env:
-        pick, place = env.goal.pick, env.goal.place
-        grasp_col = env.labeler.vocabulary.action_atoms.index(atom("grasped", pick))
-        goal_col = env.labeler.vocabulary.object_atoms.index(atom("on", pick, place))
+@pytest.mark.parametrize(
+    ("suite", "goal_atom", "kinds"),
+    [
+        ("libero_spatial", "on(akita_black_bowl_1,plate_1)", KINDS),
+        # In(item, basket) (issue 36): no knock_off, the item is still held 10 rows after success (In holds
+        # on contact) and the expert does not pick a knocked-off item out again (docs/collection.md)
+        ("libero_object", "inside(alphabet_soup_1,basket_1_contain_region)", ("drop", "displace")),
+    ],
+)
+def test_expert_recovers_from_every_perturbation_on_a_sampled_layout(
+    suite: SuiteName, goal_atom: str, kinds: tuple[str, ...]
+) -> None:
+    with LiberoTaskEnv(0, EnvConfig(suite=suite, image_size=64, inits="sampled")) as env:
+        assert env.perturb_goal is not None
+        grasp_col = env.labeler.vocabulary.action_atoms.index(atom("grasped", env.perturb_goal.pick))
+        goal_col = env.labeler.vocabulary.object_atoms.index(goal_atom)
         control = EpisodeControl()
-        perturber = Perturber(PerturbSpec(drop=1, displace=1, knock_off=1), 11, env.scene, env.goal)
+        perturber = Perturber(PerturbSpec(**{k: 1.0 for k in kinds}), 11, env.scene, env.perturb_goal)
         grasped, goal, marks, success = [], [], [], []
         for r in run_episode(
             env,
@@ -40,13 +51,16 @@ def test_expert_recovers_from_every_perturbation_on_a_sampled_layout() -> None:
             marks.append(r.perturbation)
             perturber.observe(r.t, r.world, grasped[-1], r.success, control)
         rows = {p.kind: p.row for p in perturber.planned}
-    assert set(rows) == {"drop", "displace", "knock_off"} and None not in rows.values()
-    assert marks[rows["displace"]] == "move" and marks[rows["knock_off"]] == "move"
+    assert set(rows) == set(kinds) and None not in rows.values()
+    assert marks[rows["displace"]] == "move"
     assert marks[rows["drop"]] == "drop"
-    assert success[-1] and goal[-1]  # recovered: the bowl ends on the plate
+    assert success[-1] and goal[-1]  # recovered: the object ends on (in) its target
     g = np.array(grasped)
     assert not g[: rows["displace"]].any()  # displaced before the grasp
     dropped = rows["drop"] + int(np.argmax(~g[rows["drop"] :]))
     assert not g[dropped] and g[dropped:].any()  # grasped turns false, then true again (the re-grasp)
+    if "knock_off" not in kinds:
+        return
+    assert marks[rows["knock_off"]] == "move"
     knocked = np.array(goal[rows["knock_off"] :])
     assert goal[rows["knock_off"] - 1] and not knocked[0] and knocked[-1]  # the goal atom: true, false, true
