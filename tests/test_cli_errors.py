@@ -419,10 +419,21 @@ def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.Captu
             "it out of --tasks",
         ),
         (  # the policy drives, but a takeover hands over to the expert
-            ["collect", "--suite", "libero_90", "--tasks", "33", "--driver", "policy", "--takeover", "random",
-             "--out", "OUT"],
+            [
+                "collect",
+                "--suite",
+                "libero_90",
+                "--tasks",
+                "33",
+                "--driver",
+                "policy",
+                "--takeover",
+                "random",
+                "--out",
+                "OUT",
+            ],
             "libero_90 task 33: the scripted expert has no skill for the goal conjunct Close(microwave_1)",
-        ),  # fmt: skip
+        ),
         (
             ["collect", "--suite", "libero_90", "--tasks", "90", "--out", "OUT"],
             "--tasks [90] do not exist; libero_90 has tasks 0-89",

@@ -129,7 +129,9 @@ def test_serve_union_suite_marks_the_atoms_the_task_lacks(tmp_path: Path) -> Non
 NINETY, NINETY_TASK, NO_SKILL_TASK = "libero_90", 20, 33  # turn on the stove; close the microwave (no skill)
 
 
-def test_serve_libero_90_lists_its_tasks_and_refuses_an_expert_episode_without_a_skill(tmp_path: Path) -> None:
+def test_serve_libero_90_lists_its_tasks_and_refuses_an_expert_episode_without_a_skill(
+    tmp_path: Path,
+) -> None:
     from vlaprobe.envs.bddl_scene import task_scene
     from vlaprobe.symbols.vocabulary import build_vocabulary
 

@@ -120,7 +120,10 @@ def test_folders_of_two_suites_are_refused_in_one_line(
     assert main(["compare-splits", "--within", str(w), "--across", str(a)]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1, err
-    assert f"--within {w} is from libero_spatial, --across {a} from libero_goal; combine artefacts of one suite" in err
+    assert (
+        f"--within {w} is from libero_spatial, --across {a} from libero_goal; combine artefacts of one suite"
+        in err
+    )
 
 
 @pytest.mark.parametrize("text", ["{}", "", "[1]", '{"format": "vlaprobe-evaluation", "format_version": 4}'])

@@ -96,7 +96,13 @@ def unplannable_tasks(env: EnvConfig, tasks: tuple[int, ...]) -> dict[int, str]:
 
 
 def check_tasks_plannable(
-    env: EnvConfig, tasks: tuple[int, ...], expert: bool, perturb: bool, *, chosen: bool = True, flag: str = "--tasks"
+    env: EnvConfig,
+    tasks: tuple[int, ...],
+    expert: bool,
+    perturb: bool,
+    *,
+    chosen: bool = True,
+    flag: str = "--tasks",
 ) -> None:
     """Before a collection: with the expert (``expert``) every task's goal must have skills, and ``--perturb``
     (``perturb``) needs a pick-and-place goal (what to drop, displace or knock off); one line names the task.

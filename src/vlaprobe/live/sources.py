@@ -102,7 +102,9 @@ class Simulator:
         if task in self.no_expert and (driver == "expert" or self.takeover.takeover != "none"):
             from vlaprobe.experts.planner import NO_SKILL
 
-            fix = "start it with driver 'policy'" if driver == "expert" else "this server's --takeover needs it"
+            fix = (
+                "start it with driver 'policy'" if driver == "expert" else "this server's --takeover needs it"
+            )
             raise VlaprobeError(f"task {task}: {NO_SKILL} {self.no_expert[task]}; {fix}")
         if max_steps is not None and max_steps < 1:
             raise VlaprobeError(f"max_steps must be at least 1, got {max_steps}")
