@@ -103,7 +103,9 @@ class Simulator:
             from vlaprobe.experts.planner import NO_SKILL
 
             fix = (
-                "start it with driver 'policy'" if driver == "expert" else "this server's --takeover needs it"
+                "start it with driver 'policy'"
+                if driver == "expert"
+                else "choose another task (this server's --takeover hands the policy's control to the expert)"
             )
             raise VlaprobeError(f"task {task}: {NO_SKILL} {self.no_expert[task]}; {fix}")
         if max_steps is not None and max_steps < 1:
