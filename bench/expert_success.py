@@ -87,6 +87,7 @@ def main() -> None:
     parser.add_argument("--suite", default="libero_spatial", choices=SUITES, help="LIBERO suite")
     parser.add_argument("--inits", type=int, default=size(5, 1), help="first N init states of every task")
     parser.add_argument("--all", action="store_true", help="all init states (50 per task)")
+    parser.add_argument("--first-init", type=int, default=0, help="first init state (then --inits of them)")
     parser.add_argument("--tasks", type=str, default=size("0-9", "0"), help="task indices, e.g. 0-9 or 2,4")
     parser.add_argument("--procs", type=int, default=size(2, 1), help="worker processes (one env each)")
     parser.add_argument("--seed", type=int, default=0, help="expert seed")
@@ -103,7 +104,7 @@ def main() -> None:
     for task, conjunct in skipped.items():
         print(f"task {task}: skipped (no skill for {conjunct})", file=sys.stderr, flush=True)
     tasks = [t for t in tasks if t not in skipped]
-    inits = list(range(50 if args.all else args.inits))
+    inits = list(range(50)) if args.all else list(range(args.first_init, args.first_init + args.inits))
     jobs = [(args.suite, task, inits, args.seed, args.max_steps) for task in tasks]
 
     wall = time.perf_counter()
