@@ -9,6 +9,8 @@ per task on stderr and the figures as a final JSON line on stdout.
     python bench/expert_success.py --suite libero_goal --inits 10   # another suite
     python bench/expert_success.py --inits 15   # first 15 init states of every task
     python bench/expert_success.py --all        # all 50 init states (~20 min on 2 cores)
+    python bench/expert_success.py --suite libero_90 --tasks 0-32,34,36-89 --max-steps 520
+                                                # tasks whose goal no skill handles are skipped (named)
 """
 
 from __future__ import annotations
@@ -63,11 +65,29 @@ def run_task(job: tuple[str, int, list[int], int, int]) -> list[dict]:
     return records
 
 
+def parse_tasks(text: str) -> list[int]:
+    """Task indices from "0-9", "2,4" or a mix ("0-32,34,36-89")."""
+    tasks: list[int] = []
+    for part in text.split(","):
+        first, _, last = part.partition("-")
+        tasks += range(int(first), int(last or first) + 1)
+    return tasks
+
+
+def no_skill(suite: str, tasks: list[int]) -> dict[int, str]:
+    """The tasks whose goal no expert skill handles -> that conjunct (as ``vlaprobe collect`` refuses them)."""
+    from vlaprobe.configs.env import EnvConfig
+    from vlaprobe.experts.planner import unplannable_tasks
+
+    return unplannable_tasks(EnvConfig(suite=suite), tuple(tasks))  # type: ignore[arg-type]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--suite", default="libero_spatial", choices=SUITES, help="LIBERO suite")
     parser.add_argument("--inits", type=int, default=size(5, 1), help="first N init states of every task")
     parser.add_argument("--all", action="store_true", help="all init states (50 per task)")
+    parser.add_argument("--first-init", type=int, default=0, help="first init state (then --inits of them)")
     parser.add_argument("--tasks", type=str, default=size("0-9", "0"), help="task indices, e.g. 0-9 or 2,4")
     parser.add_argument("--procs", type=int, default=size(2, 1), help="worker processes (one env each)")
     parser.add_argument("--seed", type=int, default=0, help="expert seed")
@@ -79,12 +99,12 @@ def main() -> None:
     shared_assets = Path(__file__).resolve().parents[2] / "shared" / "libero_assets"
     if "VLAPROBE_LIBERO_ASSETS" not in os.environ and shared_assets.is_dir():
         os.environ["VLAPROBE_LIBERO_ASSETS"] = str(shared_assets)
-    if "-" in args.tasks:
-        first, last = (int(x) for x in args.tasks.split("-"))
-        tasks = list(range(first, last + 1))
-    else:
-        tasks = [int(x) for x in args.tasks.split(",")]
-    inits = list(range(50 if args.all else args.inits))
+    tasks = parse_tasks(args.tasks)
+    skipped = no_skill(args.suite, tasks)
+    for task, conjunct in skipped.items():
+        print(f"task {task}: skipped (no skill for {conjunct})", file=sys.stderr, flush=True)
+    tasks = [t for t in tasks if t not in skipped]
+    inits = list(range(50)) if args.all else list(range(args.first_init, args.first_init + args.inits))
     jobs = [(args.suite, task, inits, args.seed, args.max_steps) for task in tasks]
 
     wall = time.perf_counter()
@@ -111,6 +131,8 @@ def main() -> None:
         "cpu_s_per_episode": round(sum(r["cpu_s"] for r in records) / len(records), 2),
         "wall_s": round(time.perf_counter() - wall, 1),
         "failures": [[r["task"], r["init"], r["phase"]] for r in records if not r["success"]],
+        "skipped": {str(t): c for t, c in skipped.items()},
+        "steps": [[r["task"], r["init"], r["steps"]] for r in records if r["success"]],
         "suite": args.suite,
         "max_steps": args.max_steps,
         "target": 0.95 if args.suite == "libero_spatial" else 0.9,

@@ -404,9 +404,10 @@ def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.Captu
             ["atoms", "--suite", "libero_10", "--init", "50"],
             "--init 50 does not exist; the task has init states 0-49",
         ),
-        (
+        (  # the whole suite: the tasks without a skill named, the others selected
             ["collect", "--suite", "libero_90", "--out", "OUT"],
-            "--suite libero_90: `vlaprobe collect` runs on",
+            "libero_90: the scripted expert has no skill for the goal conjunct of task 33 (Close(microwave_1)), "
+            "task 35 (Open(microwave_1)); collect the others with --tasks 0 1 2 ",
         ),
         (  # the microwave's door has no skill
             ["collect", "--suite", "libero_10", "--tasks", "9", "--out", "OUT"],
@@ -418,10 +419,39 @@ def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.Captu
             "region (a basket); libero_goal task 3's goal is In(akita_black_bowl_1,wooden_cabinet_1_top_region)",
         ),
         (
-            ["run", "--suite", "libero_90", "--out", "OUT"],
-            "--suite libero_90: `vlaprobe run` runs on libero_spatial, libero_object, libero_goal, libero_10 only",
+            ["collect", "--suite", "libero_90", "--tasks", "0", "35", "--out", "OUT"],
+            "libero_90 task 35: the scripted expert has no skill for the goal conjunct Open(microwave_1); leave "
+            "it out of --tasks",
         ),
-        (["serve", "--suite", "libero_90", "--probes", "OUT"], "--suite libero_90: `vlaprobe serve` runs on"),
+        (  # the policy drives, but a takeover hands over to the expert
+            [
+                "collect",
+                "--suite",
+                "libero_90",
+                "--tasks",
+                "33",
+                "--driver",
+                "policy",
+                "--takeover",
+                "random",
+                "--out",
+                "OUT",
+            ],
+            "libero_90 task 33: the scripted expert has no skill for the goal conjunct Close(microwave_1)",
+        ),
+        (
+            ["collect", "--suite", "libero_90", "--tasks", "90", "--out", "OUT"],
+            "--tasks [90] do not exist; libero_90 has tasks 0-89",
+        ),
+        (
+            ["run", "--suite", "libero_90", "--out", "OUT"],
+            "task 35 (Open(microwave_1)); collect the others with --collect.tasks 0 1 2 ",
+        ),
+        (
+            ["run", "--suite", "libero_90", "--collect.tasks", "33", "--out", "OUT"],
+            "libero_90 task 33: the scripted expert has no skill for the goal conjunct Close(microwave_1); leave "
+            "it out of --collect.tasks",
+        ),
     ],
 )
 def test_suite_inputs_are_one_line(

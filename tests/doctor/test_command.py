@@ -100,7 +100,7 @@ def test_the_json_object_has_its_schema(
         (["--renderers", "vulkan"], "vulkan"),
         (["--device", "tpu"], "device"),
         (["--env.max-steps", "0"], "--env.max-steps must be at least 1"),
-        (["--suite", "libero_90"], "--suite libero_90: `vlaprobe run` runs on libero_spatial, libero_object"),
+        (["--suite", "libero_100"], "invalid choice 'libero_100'"),
     ],
 )
 def test_bad_flags_exit_2_with_one_line(

@@ -71,17 +71,22 @@ def init_check(env: LiberoTaskEnv, problem: BddlProblem, init: int) -> InitCheck
     return out
 
 
-SWEEP = os.environ.get("VLAPROBE_LIBERO_SWEEP") == "1"
-"""``VLAPROBE_LIBERO_SWEEP=1``: every task of every suite (minutes); else one task per suite."""
+SWEEP = os.environ.get("VLAPROBE_LIBERO_SWEEP", "")
+"""``VLAPROBE_LIBERO_SWEEP=1``: every task of every suite (minutes); ``=SUITE``: every task of one suite;
+``=SUITE/N``: its tasks 0, N, 2N, ... (a sample); else one task per suite."""
 
 
 def sweep_cases(one_task: dict[SuiteName, int]) -> list[tuple[SuiteName, int]]:
-    """The (suite, task) cases of a per-suite LIBERO test: ``one_task`` in CI, every task under the sweep."""
-    if not SWEEP:
+    """The (suite, task) cases of a per-suite LIBERO test: ``one_task`` in CI, the tasks of the sweep
+    (``SWEEP``) under it."""
+    if SWEEP in ("", "0"):
         return list(one_task.items())
     from vlaprobe.envs.libero import suite_tasks
 
-    return [(suite, task) for suite in SUITES for task, _ in suite_tasks(suite)]
+    suite, _, every = SWEEP.partition("/")
+    suites = SUITES if suite == "1" else (suite,)
+    step = int(every or 1)
+    return [(s, task) for s in suites for task, _ in suite_tasks(s) if task % step == 0]
 
 
 @pytest.mark.parametrize(("suite", "task"), sweep_cases(ONE_TASK))

@@ -124,3 +124,42 @@ def test_serve_union_suite_marks_the_atoms_the_task_lacks(tmp_path: Path) -> Non
 
     never = {diarc_term(a) for a, d in zip(atoms["object"], defined["object"], strict=True) if not d}
     assert not never & {b for s in steps for b in s["beliefs"]["asserted"]}
+
+
+NINETY, NINETY_TASK, NO_SKILL_TASK = "libero_90", 20, 33  # turn on the stove; close the microwave (no skill)
+
+
+def test_serve_libero_90_lists_its_tasks_and_refuses_an_expert_episode_without_a_skill(
+    tmp_path: Path,
+) -> None:
+    from vlaprobe.envs.bddl_scene import task_scene
+    from vlaprobe.symbols.vocabulary import build_vocabulary
+
+    vocab = build_vocabulary(task_scene(NINETY, NINETY_TASK))
+    atoms = {"object": list(vocab.object_atoms), "action": list(vocab.action_atoms)}
+    probes = random_probes(tmp_path / "probes", "tiny-openvla-seed0", 33, 64, atoms, suite=NINETY)
+    cfg = ServeConfig(
+        probes=probes, model="tiny", device="cpu", recordings=tmp_path / "live", env=EnvConfig(suite=NINETY)
+    )
+    app = create_app(build_engine(cfg, load_probes(cfg)), limits_of(cfg, None))
+    with LiveServer(app) as srv, connect(srv.url, max_size=None) as ws:
+        hello = json.loads(ws.recv(timeout=30))
+        assert hello["suite"] == NINETY and len(hello["tasks"]) == 90
+        start = {"type": "start", "task": NO_SKILL_TASK, "init": 0, "driver": "expert", "max_steps": STEPS}
+        ws.send(json.dumps(start))
+        error = json.loads(ws.recv(timeout=30))
+        assert error["type"] == "error" and "\n" not in error["message"]
+        assert (
+            "task 33: the scripted expert has no skill for the goal conjunct Close(microwave_1); start it with "
+            "driver 'policy'" in error["message"]
+        )
+        ws.send(json.dumps({**start, "task": NINETY_TASK}))
+        msgs = []
+        while not msgs or msgs[-1]["type"] != "episode_end":
+            msgs.append(json.loads(ws.recv(timeout=120)))
+    assert msgs[0]["type"] == "episode_start" and msgs[0]["suite"] == NINETY and msgs[0]["atoms"] == atoms
+    assert [g["name"] for g in msgs[0]["subgoals"]] == [
+        "should-move-towards(flat_stove_1)",
+        "turned-on(flat_stove_1)",
+    ]
+    assert len([m for m in msgs if m["type"] == "step"]) == STEPS

@@ -110,6 +110,22 @@ def test_folders_of_another_model_or_store_are_refused(tmp_path: Path) -> None:
         split_comparison(w, fewer)
 
 
+def test_folders_of_two_suites_are_refused_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from vlaprobe.cli import main
+
+    w = _evaluation(tmp_path / "w", 0, [[0.9]], ["on"], config=_by("episode"))
+    a = _evaluation(tmp_path / "a", 0, [[0.7]], ["on"], config=_by("leave-one-task-out"), suite="libero_goal")
+    assert main(["compare-splits", "--within", str(w), "--across", str(a)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert (
+        f"--within {w} is from libero_spatial, --across {a} from libero_goal; combine artefacts of one suite"
+        in err
+    )
+
+
 @pytest.mark.parametrize("text", ["{}", "", "[1]", '{"format": "vlaprobe-evaluation", "format_version": 4}'])
 def test_an_empty_or_malformed_evaluation_is_one_line(tmp_path: Path, text: str) -> None:
     from vlaprobe.cli import main

@@ -81,8 +81,14 @@ def check_collect_suite(cfg: CollectConfig, prefix: str = "") -> None:
     if cfg.env.suite != "libero_spatial":  # every LIBERO-spatial goal is the rim pick's
         from vlaprobe.experts.planner import check_tasks_plannable
 
+        expert = cfg.driver != "policy" or cfg.intervention.takeover != "none"  # a takeover hands over to it
         check_tasks_plannable(
-            cfg.env, cfg.tasks or tuple(known), expert=cfg.driver != "policy", perturb=bool(cfg.perturb)
+            cfg.env,
+            cfg.tasks or tuple(known),
+            expert=expert,
+            perturb=bool(cfg.perturb),
+            chosen=bool(cfg.tasks),
+            flag=f"--{prefix}tasks",
         )
 
 

@@ -34,8 +34,8 @@ class EnvConfig:
 
     suite: Annotated[SuiteName, tyro.conf.arg(aliases=("--suite",))] = "libero_spatial"
     """LIBERO benchmark suite (``--env.suite`` or ``--suite``). The scene, vocabulary and goal of every suite are
-    read from its BDDL files (docs/symbols.md); ``tasks`` and ``atoms`` take every suite, ``collect``, ``run`` and
-    ``serve`` those the scripted expert drives (all but libero_90)."""
+    read from its BDDL files (docs/symbols.md); every command takes every suite, and the scripted expert refuses
+    (one line, before any work) a task whose goal no skill of it handles."""
     assets: Path | None = None
     """LIBERO assets folder (meshes, textures, scenes). Default: $VLAPROBE_LIBERO_ASSETS, else the
     assets inside the installed libero package, else LIBERO's own download."""

@@ -28,7 +28,6 @@ from vlaprobe.doctor.system import (
     tool_check,
     torch_check,
 )
-from vlaprobe.envs.checks import check_episode_suite
 from vlaprobe.errors import VlaprobeError
 
 
@@ -40,7 +39,6 @@ def check_doctor(cfg: DoctorConfig) -> None:
     if not cfg.renderers:
         raise VlaprobeError("--renderers needs at least one backend: osmesa, egl or glx")
     check_env(cfg.env)
-    check_episode_suite(cfg.env, "run")  # what `vlaprobe run` refuses, the doctor refuses the same way
     check_policy(cfg.policy)
     check_device(cfg.policy.device, "--device")
 

@@ -8,10 +8,7 @@ from __future__ import annotations
 import re
 
 from vlaprobe.configs.checks import at_least, check_env
-from vlaprobe.configs.collect import CollectConfig
 from vlaprobe.configs.env import EnvConfig, SuiteName
-from vlaprobe.configs.run import RunConfig
-from vlaprobe.configs.serve import ServeConfig
 from vlaprobe.configs.suite import AtomsConfig, TasksConfig
 from vlaprobe.errors import VlaprobeError
 
@@ -80,36 +77,11 @@ def check_atoms(cfg: AtomsConfig) -> None:
         raise VlaprobeError(f"--init {cfg.init} does not exist; the task has init states 0-{inits - 1}")
 
 
-COLLECT_SUITES: tuple[SuiteName, ...] = ("libero_spatial", "libero_object", "libero_goal", "libero_10")
-"""Suites ``collect`` takes: those whose tasks the scripted expert's skills were measured on (docs/collection.md,
-"The scripted expert"); a task whose goal no skill handles is refused by the collection's own checks."""
-EPISODE_SUITES: tuple[SuiteName, ...] = COLLECT_SUITES
-"""Suites whose episodes can be probed and monitored end to end (``run``, ``serve``): those the expert drives; the
-cognition follows each task's own goal conjunction (``cognition.plan.task_goal``), leaves out (named) the episodes
-whose goal no atom can follow (a push onto a table region), and runs on the object head alone when ``train``
-skipped the action head (its atoms constant on a small store). ``tasks`` and ``atoms`` take every suite."""
-
-
-def check_episode_suite(env: EnvConfig, command: str, suites: tuple[SuiteName, ...] = EPISODE_SUITES) -> None:
-    """Refuse a suite whose episodes ``command`` cannot yet produce or follow, before any work."""
-    if env.suite not in suites:
-        raise VlaprobeError(
-            f"--suite {env.suite}: `vlaprobe {command}` runs on {', '.join(suites)} only so far (the "
-            f"expert and the cognition know no more); use --suite libero_spatial, or look at "
-            f"{env.suite} with `vlaprobe tasks` and `vlaprobe atoms`"
-        )
-
-
 def precheck(cfg: object) -> None:
-    """Checks the CLI runs before a command whose own function has none up front (``atoms``, ``tasks``), and the
-    suite of the commands that step episodes."""
+    """Checks the CLI runs before a command whose own function has none up front (``atoms``, ``tasks``). Every
+    suite is taken by every command: ``collect`` and ``run`` refuse the tasks whose goal no expert skill handles
+    (``experts.planner.check_tasks_plannable``), ``serve`` an expert episode of one."""
     if isinstance(cfg, AtomsConfig):
         check_atoms(cfg)
     elif isinstance(cfg, TasksConfig):
         check_env(cfg.env)
-    elif isinstance(cfg, CollectConfig):
-        check_episode_suite(cfg.env, "collect", COLLECT_SUITES)
-    elif isinstance(cfg, ServeConfig):
-        check_episode_suite(cfg.env, "serve")
-    elif isinstance(cfg, RunConfig):
-        check_episode_suite(cfg.collect.env, "run")

@@ -36,6 +36,7 @@ ORDER: tuple[SkillName, ...] = (
 )
 RIM_OBJECTS = ("bowl", "mug")
 """Instance-name parts of the objects picked by their rim (LIBERO names instances ``<category>_<n>``)."""
+NO_SKILL = "the scripted expert has no skill for the goal conjunct"
 PUSHED_OBJECTS = ("plate",)
 """Instance-name parts of the objects pushed, not carried, onto a placement region of the table."""
 
@@ -74,26 +75,56 @@ def plan_steps(goal: GoalConjunction, scene: Scene) -> list[Step]:
             else:
                 steps.append(Step("rim_place" if _kind(what, RIM_OBJECTS) else "body_place", what, where))
         else:
-            raise VlaprobeError(f"the scripted expert has no skill for the goal conjunct {conjunct}")
+            raise VlaprobeError(f"{NO_SKILL} {conjunct}")
     unique = list(dict.fromkeys(steps))
     return sorted(unique, key=lambda s: ORDER.index(s.skill))
 
 
-def check_tasks_plannable(env: EnvConfig, tasks: tuple[int, ...], expert: bool, perturb: bool) -> None:
+def unplannable_tasks(env: EnvConfig, tasks: tuple[int, ...]) -> dict[int, str]:
+    """Of ``tasks`` of ``env.suite``, those whose goal has a conjunct no skill handles: task -> that conjunct
+    (read from the BDDL files: no simulator)."""
+    from vlaprobe.envs.bddl_scene import task_bddl, task_scene
+
+    refused: dict[int, str] = {}
+    for task in tasks:
+        goal, scene = task_bddl(env.suite, task).goal, task_scene(env.suite, task, env.assets)
+        try:
+            plan_steps(goal, scene)
+        except VlaprobeError as exc:
+            refused[task] = str(exc).removeprefix(NO_SKILL).strip()
+    return refused
+
+
+def check_tasks_plannable(
+    env: EnvConfig,
+    tasks: tuple[int, ...],
+    expert: bool,
+    perturb: bool,
+    *,
+    chosen: bool = True,
+    flag: str = "--tasks",
+) -> None:
     """Before a collection: with the expert (``expert``) every task's goal must have skills, and ``--perturb``
     (``perturb``) needs a goal that carries one object onto or into another (what to drop, displace or knock
-    off: :func:`~vlaprobe.envs.bddl_scene.carried_object_goal`); one line names the task."""
+    off: :func:`~vlaprobe.envs.bddl_scene.carried_object_goal`); one line names the task. ``chosen``: ``tasks``
+    were named (``flag``); else they are the whole suite, and the line names every task left without a skill and
+    the ``flag`` that selects the others."""
     from vlaprobe.envs.bddl_scene import carried_object_goal, task_bddl, task_scene
 
-    for task in tasks:
+    refused = unplannable_tasks(env, tasks) if expert else {}
+    if refused and chosen:
+        task, conjunct = next(iter(refused.items()))
+        raise VlaprobeError(f"{env.suite} task {task}: {NO_SKILL} {conjunct}; leave it out of {flag}")
+    if refused:
+        missing = ", ".join(f"task {t} ({c})" for t, c in refused.items())
+        others = " ".join(str(t) for t in tasks if t not in refused)
+        raise VlaprobeError(
+            f"{env.suite}: the scripted expert has no skill for the goal conjunct of {missing}; collect the "
+            f"others with {flag} {others}"
+        )
+    for task in tasks if perturb else ():
         problem = task_bddl(env.suite, task)
-        scene = task_scene(env.suite, task, env.assets)
-        try:
-            if expert:
-                plan_steps(problem.goal, scene)
-        except VlaprobeError as exc:
-            raise VlaprobeError(f"{env.suite} task {task}: {exc}; leave it out of --tasks") from None
-        if perturb and carried_object_goal(problem.goal, scene) is None:
+        if carried_object_goal(problem.goal, task_scene(env.suite, task, env.assets)) is None:
             raise VlaprobeError(
                 f"--perturb needs a goal of one On(a, b) between objects or one In(a, b) into a movable object's "
                 f"region (a basket); {env.suite} task {task}'s goal is {problem.goal}: collect it without --perturb"

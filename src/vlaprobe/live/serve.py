@@ -186,6 +186,7 @@ def build_engine(
             cfg.env.suite,
         )
     probes.check(model_id=policy.model_id, pooling=policy.pooling)
+    no_expert: dict[int, str] = {}  # tasks whose goal no expert skill handles (read from the BDDL files)
     if make_env is None or tasks is None:
         from vlaprobe.envs import make_env as make_task_env
         from vlaprobe.envs.libero import num_init_states as init_states
@@ -193,6 +194,10 @@ def build_engine(
 
         tasks = dict(suite_tasks(cfg.env.suite))
         num_init_states = init_states(cfg.env.suite, 0)  # no simulator needed
+        if cfg.env.suite != "libero_spatial":  # every LIBERO-spatial goal is the rim pick's
+            from vlaprobe.experts.planner import unplannable_tasks
+
+            no_expert = unplannable_tasks(cfg.env, tuple(tasks))
 
         env_cfg = replace(cfg.env, layout_seed=cfg.seed)  # sampled layouts as collect --seed's
 
@@ -215,6 +220,7 @@ def build_engine(
         suite=cfg.env.suite,
         takeover=cfg.intervention,
         atoms=atoms,
+        no_expert=no_expert,
         **extra,
     )
     replays = None if cfg.store is None else store_replays(cfg.store, probes, make_builder)

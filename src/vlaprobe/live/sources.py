@@ -52,14 +52,17 @@ class Simulator:
         suite: str = "libero_spatial",
         takeover: TakeoverConfig | None = None,
         atoms: dict[str, list[str]] | None = None,
+        no_expert: dict[int, str] | None = None,
     ) -> None:
         """``step_limit``: the longest budget the simulator runs (LIBERO's horizon less the settling steps);
         ``num_init_states``: per task, known up front (a bad init is then refused before the episode starts);
         ``suite``: the LIBERO suite of ``tasks`` (recorded with every episode); ``takeover``: when the
         scripted expert takes over from the policy (``serve --takeover``; None: never); ``atoms``: the
         server's atom names per head, those of the probes (a union suite's: the union of its tasks'
-        vocabularies); None: each task's own."""
+        vocabularies); None: each task's own; ``no_expert``: the tasks whose goal no expert skill handles ->
+        that conjunct (an episode the expert would drive or take over is refused)."""
         self.policy, self.tasks, self.suite, self.atoms = policy, tasks, suite, atoms
+        self.no_expert = no_expert or {}
         self.takeover = takeover or TakeoverConfig()
         self.runner = EpisodeRunner(policy, EnvCache(make_env, on_new=self._new_env), make_driver)
         self.max_steps, self.post_success_steps = max_steps, post_success_steps
@@ -96,6 +99,15 @@ class Simulator:
                 f"this server hands the policy's control to the expert (--takeover {self.takeover.takeover}); "
                 "start with driver 'policy'"
             )
+        if task in self.no_expert and (driver == "expert" or self.takeover.takeover != "none"):
+            from vlaprobe.experts.planner import NO_SKILL
+
+            fix = (
+                "start it with driver 'policy'"
+                if driver == "expert"
+                else "choose another task (this server's --takeover hands the policy's control to the expert)"
+            )
+            raise VlaprobeError(f"task {task}: {NO_SKILL} {self.no_expert[task]}; {fix}")
         if max_steps is not None and max_steps < 1:
             raise VlaprobeError(f"max_steps must be at least 1, got {max_steps}")
         budget = max_steps or self.max_steps

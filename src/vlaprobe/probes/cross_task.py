@@ -11,6 +11,7 @@ import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from vlaprobe.configs.env import same_suite
 from vlaprobe.configs.hypotheses import CompareSplitsConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.probes.results import Evaluation, HeadResult, read_evaluation
@@ -51,12 +52,13 @@ def _split_of(ev: Evaluation) -> str | None:
 
 def check_pair(within: Path, across: Path, a: Evaluation, b: Evaluation) -> None:
     """Refuse two evaluations that do not make a within-task / cross-task pair of one store: the same folder
-    twice, the two folders swapped or of one split, another model or other data."""
+    twice, two suites, the two folders swapped or of one split, another model or other data."""
     if within.resolve() == across.resolve():
         raise VlaprobeError(
             f"--within and --across are the same folder ({within}); pass the within-task probes and the "
             f"probes trained with --split.by {LOTO} on the same store"
         )
+    same_suite(f"--within {within}", a.suite, f"--across {across}", b.suite)
     kinds = _split_of(a), _split_of(b)
     if None not in kinds and not (kinds[0] != LOTO and kinds[1] == LOTO):
         if kinds[0] == LOTO and kinds[1] != LOTO:
