@@ -174,7 +174,7 @@ CASES: dict[str, tuple[dict[str, Any], dict[str, Any], str, Any]] = {
     "takeover": (
         {"driver": "policy"},
         {"driver": "policy", "intervention": TakeoverConfig(takeover="alarm")},
-        '--takeover and its settings is "" in the store but "alarm steps=60',
+        '--takeover and its settings is "" in the store but "alarm until=subgoal steps=150',
         None,
     ),
 }

@@ -15,6 +15,8 @@ from vlaprobe.configs.serve import ServeConfig
 from vlaprobe.configs.takeover import TakeoverConfig
 from vlaprobe.live import protocol as P
 from vlaprobe.live.app import Limits, create_app
+from vlaprobe.live.takeover import LiveTakeovers
+from vlaprobe.rollout.takeover import Takeover
 
 pytestmark = pytest.mark.timeout(120)
 SERVER = jsonschema.Draft202012Validator({**json.loads(P.SCHEMA_FILE.read_text()), "required": ["server"]})
@@ -63,9 +65,12 @@ def test_the_alarm_hands_the_policy_to_the_expert_and_back(fake_run: Path, tmp_p
         takeover_stall=4,
         takeover_steps=3,
         takeover_most=2,
+        takeover_until="steps",
     )
-    assert hello["protocol"] == 3 and hello["drivers"] == ["policy"]
-    assert hello["takeover"] == {"mode": "alarm", "steps": 3, "most": 2, "stall": 4, "hold": 5, "count": 1}
+    assert hello["protocol"] == 4 and hello["drivers"] == ["policy"]
+    assert hello["takeover"] == {
+        **{"mode": "alarm", "steps": 3, "until": "steps", "most": 2, "stall": 4, "hold": 5, "count": 1}
+    }
     start, steps, end = msgs[0], msgs[1:-1], msgs[-1]
     assert start["takeover"] == "alarm" and end["type"] == "episode_end"
     alarms = [s for s in steps if s["alarm"] is not None]
@@ -81,11 +86,56 @@ def test_the_alarm_hands_the_policy_to_the_expert_and_back(fake_run: Path, tmp_p
     taken = takeovers_of(steps)
     assert [(t["start"], t["steps"], t["reason"]) for t in end["summary"]["takeovers"]] == taken
     assert end["summary"]["expert_steps"] == sum(n for _, n, _ in taken) == 3 * len(taken)
+    assert {t["ended"] for t in end["summary"]["takeovers"]} <= {"steps", None}
     for start_row, n, _ in taken:  # the expert acts its steps, then the policy again
         under = [s["t"] for s in steps if s["takeover"] and s["takeover"]["start"] == start_row]
         assert under == list(range(start_row, start_row + n))
         assert steps[start_row + n]["handover"] == "to_policy" and steps[start_row + n]["takeover"] is None
         assert all(s["alarm"] is None for s in steps[start_row : start_row + n])  # silent while it acts
+
+
+def test_until_subgoal_a_takeover_the_subgoal_does_not_end_stops_at_its_cap(
+    fake_run: Path, tmp_path: Path
+) -> None:
+    # The fake probes' predictions never mark a subgoal done: every takeover runs to its cap (the subgoal's
+    # hand-back itself: test_the_live_hand_back_asks_for_the_policy_once_the_subgoal_is_done).
+    hello, msgs = episode(
+        fake_run,
+        tmp_path,
+        {"init": FAIL_INIT, "max_steps": 60},
+        takeover="alarm",
+        takeover_stall=4,
+        takeover_steps=20,
+        takeover_most=3,
+    )
+    assert hello["takeover"]["until"] == "subgoal" and hello["takeover"]["steps"] == 20
+    steps, summary = msgs[1:-1], msgs[-1]["summary"]["takeovers"]
+    assert len(summary) >= 2, "fewer than two takeovers: the test proves little"
+    for t in summary:
+        last = t["start"] + t["steps"] - 1
+        assert t["ended"] in ("cap", None) and (t["steps"] == 20) == (t["ended"] == "cap"), t
+        if t["ended"] is None:  # the episode ended while the expert acted
+            assert last >= len(steps) - 2, t
+        if t["ended"] == "cap":  # the step messages say so from the takeover's last step on
+            assert steps[last]["takeover"]["ended"] == "cap" and steps[last - 1]["takeover"]["ended"] is None
+            assert steps[last + 1]["handover"] == "to_policy"
+
+
+def test_the_live_hand_back_asks_for_the_policy_once_the_subgoal_is_done() -> None:
+    from types import SimpleNamespace
+
+    from tests.cognition.test_alarm import _level
+
+    live = LiveTakeovers(TakeoverConfig(takeover="alarm", takeover_stall=100), seed=0, max_steps=50)
+    under = Takeover(2, "stall: x")
+    backs = []
+    for t, (done, by) in enumerate([(0, None), (0, None), (1, under), (1, under), (2, under), (2, None)]):
+        live.observe(SimpleNamespace(t=t, takeover=by, terminal=False), _level(t, done))  # type: ignore[arg-type]
+        backs.append(live.take_hand_back())
+    assert backs == [None, None, None, None, "subgoal: grasped(a)", None]
+    steps = LiveTakeovers(TakeoverConfig(takeover="alarm", takeover_until="steps"), seed=0, max_steps=50)
+    steps.observe(SimpleNamespace(t=4, takeover=under, terminal=False), _level(4, 2))  # type: ignore[arg-type]
+    assert steps.take_hand_back() is None  # a fixed length: nobody hands back
 
 
 def test_the_random_control_takes_over_at_its_count(fake_run: Path, tmp_path: Path) -> None:

@@ -1,6 +1,7 @@
 """`vlaprobe serve --takeover alarm` on LIBERO: in a live episode on 127.0.0.1 the tiny model acts, the alarm
 (a low stall threshold) fires on the predictions and the scripted expert's actions are executed for
---takeover-steps steps, then the model's again; every message matches the exported schema (slow: libero mark).
+--takeover-steps steps (--takeover-until steps; the subgoal's hand-back on LIBERO:
+tests/rollout/test_takeover_libero.py), then the model's again; every message matches the exported schema (slow: libero mark).
 Random probes and random model weights: the plumbing, not what the probes know."""
 
 from __future__ import annotations
@@ -34,7 +35,11 @@ def test_the_alarm_hands_a_live_libero_episode_to_the_expert(probes: Path, tmp_p
         recordings=tmp_path,
         driver="policy",
         intervention=TakeoverConfig(
-            takeover="alarm", takeover_stall=2, takeover_steps=TAKEOVER_STEPS, takeover_most=2
+            takeover="alarm",
+            takeover_stall=2,
+            takeover_steps=TAKEOVER_STEPS,
+            takeover_most=2,
+            takeover_until="steps",
         ),
     )
     app = create_app(build_engine(cfg, load_probes(cfg)), limits_of(cfg, None))

@@ -62,7 +62,14 @@ export function App({ store }: { store: Store }) {
             caption={caption(episode, index, s.paused && !snap.replay)}
             step={episode?.steps[index] ?? null}
           />
-          {episode && <TakeoverPanel episode={episode} index={index} length={snap.hello?.takeover?.steps ?? null} />}
+          {episode && (
+            <TakeoverPanel
+              episode={episode}
+              index={index}
+              length={snap.hello?.takeover?.steps ?? null}
+              until={snap.hello?.takeover?.until ?? "steps"}
+            />
+          )}
           {episode && <Cognition episode={episode} index={index} />}
         </div>
         <div className="right">

@@ -105,6 +105,7 @@ export interface EpisodeSummary {
  * via the `definition` "Takeover".
  */
 export interface Takeover {
+  ended?: string | null;
   index: number;
   reason: string;
   start: number;
@@ -370,6 +371,7 @@ export interface TakeoverSettings {
   most: number;
   stall: number;
   steps: number;
+  until?: "subgoal" | "steps";
 }
 /**
  * This interface was referenced by `Protocol`'s JSON-Schema

@@ -1,9 +1,10 @@
 """The supervisor of a collected episode under ``--takeover``: the random control here, the alarm injected.
 
 The cognition's alarm lives above collection (``vlaprobe.cognition``); a caller that has it passes a
-:data:`MakeSupervisor` to the worker. The random control needs no cognition: each episode gets as many
-takeovers as the episode of the same task and init state in the alarm run's store (``--takeover-match``), at
-rows drawn from its seed within that episode's length.
+:data:`MakeSupervisor` to the worker. The random control's takeovers need no cognition to start: each episode
+gets as many takeovers as the episode of the same task and init state in the alarm run's store
+(``--takeover-match``), at rows drawn from its seed within that episode's length; under ``--takeover-until
+subgoal`` the cognition hands them back (the supervisor is built with these rows as its trigger).
 """
 
 from __future__ import annotations
@@ -17,9 +18,10 @@ from vlaprobe.envs.base import TaskEnv
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.rollout.takeover import RandomTakeovers, Supervisor, Takeovers
 
-MakeSupervisor = Callable[[TaskEnv, TakeoverConfig, str], Supervisor]
-"""Builds the alarm's supervisor of one episode: (simulator, settings, the observing model's id: probes that
-read the hidden states must be that model's)."""
+MakeSupervisor = Callable[[TaskEnv, TakeoverConfig, str, Supervisor | None], Supervisor]
+"""Builds the cognition's supervisor of one episode: (simulator, settings, the observing model's id: probes
+that read the hidden states must be that model's, the trigger that asks for takeovers instead of the alarm:
+the random control's rows, or None)."""
 
 
 def matched_counts(store: Path, suite: str, model_id: str) -> dict[tuple[int, int], tuple[int, int]]:

@@ -143,6 +143,10 @@ class Worker:
             )
         if mode == "random" and cfg.intervention.takeover_match is None:
             raise VlaprobeError("--takeover random needs --takeover-match STORE (the alarm run to match)")
+        if mode == "random" and cfg.intervention.takeover_until == "subgoal" and make_supervisor is None:
+            raise VlaprobeError(
+                "--takeover-until subgoal hands back by the cognition; run it through `vlaprobe collect`"
+            )
         self._make_supervisor = make_supervisor
         match = cfg.intervention.takeover_match
         import torch
@@ -235,14 +239,18 @@ class Worker:
             faults=FaultSpec.parse(self.cfg.expert_faults),
             takeover=self.cfg.intervention.takeover,
             takeover_steps=self.cfg.intervention.takeover_steps,
+            takeover_until=self.cfg.intervention.takeover_until,
         )
         start = time.perf_counter()
         rows, track, done = StepRows(), _Outcome(env, perturber, control), []
         for r in records:
             track.add(r)  # perturbations come due while the episode runs
             done.append(r)
-            if supervisor is not None and control is not None and (reason := supervisor.observe(r)):
-                control.take_over(reason)
+            if supervisor is not None and control is not None:
+                if reason := supervisor.observe(r):
+                    control.take_over(reason)
+                if back := supervisor.hand_back():
+                    control.hand_back(back)
         if self._deferred is not None:
             done = self._deferred.fill(done, env.instruction)
         for r in done:
@@ -274,11 +282,18 @@ class Worker:
     def _supervisor(self, env: TaskEnv, unit: Unit, seed: int) -> Supervisor | None:
         """Who asks for takeovers in this episode (None without ``--takeover``)."""
         cfg = self.cfg.intervention
-        if cfg.takeover == "random":
-            return random_supervisor(self._counts, unit.task, unit.init, seed, cfg)
-        if cfg.takeover == "alarm" and self._make_supervisor is not None:
-            return self._make_supervisor(env, cfg, self.policy.model_id)
-        return None
+        rows = (
+            random_supervisor(self._counts, unit.task, unit.init, seed, cfg)
+            if cfg.takeover == "random"
+            else None
+        )
+        if (
+            cfg.takeover == "none"
+            or self._make_supervisor is None
+            or (rows is not None and cfg.takeover_until == "steps")
+        ):
+            return rows  # the random control without the cognition (checked in __init__)
+        return self._make_supervisor(env, cfg, self.policy.model_id, rows)
 
     def close(self) -> None:
         self.runner.close()

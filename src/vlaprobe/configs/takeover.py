@@ -8,6 +8,8 @@ from typing import Literal
 
 TakeoverMode = Literal["none", "alarm", "random"]
 """Who hands the policy's control to the scripted expert: nobody, the cognition's alarm, or random times."""
+TakeoverUntil = Literal["subgoal", "steps"]
+"""When the expert hands back: once the subgoal current at the takeover's start is done, or after a fixed count."""
 
 
 @dataclass
@@ -15,12 +17,20 @@ class TakeoverConfig:
     """When the scripted expert takes over from the policy (docs/failures.md#the-cognition-takes-over)."""
 
     takeover: TakeoverMode = "none"
-    """"alarm": when the cognition's alarm fires, the scripted expert acts --takeover-steps actions, then the
+    """"alarm": when the cognition's alarm fires, the scripted expert acts until --takeover-until, then the
     policy again; "random": the same at random (seeded) rows, the control (collect: as many per episode as the
     matching episode of --takeover-match had; serve: --takeover-count); "none": never. Needs --driver policy or
     dagger."""
-    takeover_steps: int = 60
-    """Actions the expert executes per takeover (the episode may end first)."""
+    takeover_until: TakeoverUntil = "subgoal"
+    """"subgoal": the expert hands back once the cognition marks done the subgoal that was current when the
+    takeover began (or the goal holds), after at most --takeover-steps actions; "steps": after exactly
+    --takeover-steps actions. The random control hands back by the same rule (its cognition reads the same
+    atoms as the alarm's), so the conditions differ only in when a takeover starts."""
+    takeover_steps: int = 150
+    """Under --takeover-until subgoal the cap of a takeover's actions, under steps its length (the episode may
+    end first). 150: the scripted expert solves a whole LIBERO-spatial task from the reset in 161 steps on
+    average (109-283 over 150 episodes), so one subgoal from wherever the policy left the arm fits,
+    while an expert that cannot finish it hands back within half of a 300-step episode."""
     takeover_most: int = 3
     """Most takeovers per episode."""
     takeover_stall: int = 40
@@ -44,6 +54,7 @@ class TakeoverConfig:
             return ""
         probes = "truth" if self.takeover_probes is None else str(self.takeover_probes)
         alarm = f" stall={self.takeover_stall} hold={self.takeover_hold} atoms={probes}"
-        return f"{self.takeover} steps={self.takeover_steps} most={self.takeover_most}" + (
+        until = " until=subgoal" if self.takeover_until == "subgoal" else ""  # stores before it: steps
+        return f"{self.takeover}{until} steps={self.takeover_steps} most={self.takeover_most}" + (
             alarm if self.takeover == "alarm" else ""
         )

@@ -286,6 +286,10 @@ class StepBuilder:
         """The reason of the takeover asked at the latest step, if any (the episode's control carries it)."""
         return None if self.takeovers is None else self.takeovers.take_request()
 
+    def take_hand_back(self) -> str | None:
+        """The reason of the hand-back asked at the latest step, if any (``--takeover-until subgoal``)."""
+        return None if self.takeovers is None else self.takeovers.take_hand_back()
+
     def _flips(self, now: dict[str, np.ndarray] | None, prev: dict[str, np.ndarray]) -> P.FlipSet:
         on: list[str] = []
         off: list[str] = []

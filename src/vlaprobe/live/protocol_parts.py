@@ -143,6 +143,10 @@ class Takeover(StrictModel):
     """The alarm's ``kind: reason``, or "random" (the control)."""
     steps: int
     """Actions the expert executed in it: so far (in a step) or in all (in the episode's summary)."""
+    ended: str | None = None
+    """Why the expert handed back: "subgoal: NAME" (the subgoal current at its start is done, hello.takeover.until
+    "subgoal"), "goal" (the goal holds), "cap" (its steps ran out under "subgoal"), "steps" (its fixed length
+    under "steps"); null while it acts, or when the episode ended first (protocol 4)."""
 
 
 class TakeoverSettings(StrictModel):
@@ -150,7 +154,10 @@ class TakeoverSettings(StrictModel):
 
     mode: Literal["alarm", "random"]
     steps: int
-    """Actions the expert executes per takeover (--takeover-steps)."""
+    """Actions the expert executes per takeover (--takeover-steps): at most (until "subgoal"), or exactly."""
+    until: Literal["subgoal", "steps"] = "steps"
+    """When the expert hands back (--takeover-until): once the subgoal current at the takeover's start is done
+    (or the goal holds), or after ``steps`` actions; absent (protocol 3 and before): "steps"."""
     most: int
     """Most takeovers per episode (--takeover-most)."""
     stall: int

@@ -259,6 +259,7 @@ def takeover_settings(cfg: TakeoverConfig) -> P.TakeoverSettings | None:
     return P.TakeoverSettings(
         mode=cfg.takeover,
         steps=cfg.takeover_steps,
+        until=cfg.takeover_until,
         most=cfg.takeover_most,
         stall=cfg.takeover_stall,
         hold=cfg.takeover_hold,

@@ -157,6 +157,8 @@ class Session:
                 msg.drop_left = run.control.drop_left
                 if (reason := builder.take_request()) is not None:
                     run.control.take_over(reason)  # the expert acts from the next step on
+                if (back := builder.take_hand_back()) is not None:
+                    run.control.hand_back(back)  # the policy acts from the next step on
                 jpeg = encode_jpeg(rec.model_image)
                 state = msg.model_dump_json(exclude={"image"})
                 if recorder is not None:

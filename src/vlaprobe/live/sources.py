@@ -174,6 +174,7 @@ class LiveSource:
             control=control,
             takeover=self.spec.takeover,
             takeover_steps=self.sim.takeover.takeover_steps,
+            takeover_until=self.sim.takeover.takeover_until,
         )
         return records if self.columns is None else map(self._widen, records)
 

@@ -134,6 +134,7 @@ class EpisodeControl:
         self._drop_steps = 0
         self._move: tuple[str, tuple[float, float]] | None = None
         self._takeover: str | None = None
+        self._hand_back: str | None = None
 
     def stop(self) -> None:
         """End the episode after the current step (a paused loop wakes up and ends)."""
@@ -168,6 +169,17 @@ class EpisodeControl:
         """The reason of a pending takeover request, if any (consumes it)."""
         with self._lock:
             reason, self._takeover = self._takeover, None
+            return reason
+
+    def hand_back(self, reason: str) -> None:
+        """End the running takeover: the policy acts from the next action on (``--takeover-until subgoal``)."""
+        with self._lock:
+            self._hand_back = reason
+
+    def take_hand_back(self) -> str | None:
+        """The reason of a pending hand-back request, if any (consumes it)."""
+        with self._lock:
+            reason, self._hand_back = self._hand_back, None
             return reason
 
     def take_move(self) -> tuple[str, tuple[float, float]] | None:

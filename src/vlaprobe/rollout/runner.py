@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterable, Iterator
 import numpy as np
 
 from vlaprobe.configs.collect import DriverName
-from vlaprobe.configs.takeover import TakeoverMode
+from vlaprobe.configs.takeover import TakeoverMode, TakeoverUntil
 from vlaprobe.envs.base import TaskEnv
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.policies.base import VLAPolicy
@@ -95,17 +95,20 @@ class EpisodeRunner:
         faults: FaultSpec | None = None,
         takeover: TakeoverMode = "none",
         takeover_steps: int = 0,
+        takeover_until: TakeoverUntil = "steps",
     ) -> Iterator[StepRecord]:
         """Seed, build the driver and run one episode (see :func:`vlaprobe.rollout.run_episode`); ``beta`` is
         the dagger driver's share of expert-executed steps, ``faults`` those injected into the expert;
-        ``takeover`` other than "none": the scripted expert acts ``takeover_steps`` actions whenever ``control``
-        asks (:mod:`vlaprobe.rollout.takeover`)."""
+        ``takeover`` other than "none": the scripted expert acts whenever ``control`` asks, until it is asked to
+        hand back or for ``takeover_steps`` actions (``takeover_until``; :mod:`vlaprobe.rollout.takeover`)."""
         seed_everything(seed)
         chosen = self._make_driver(driver, env, self.policy, seed, beta)
         if faults is not None and faults.any:
             chosen = with_faults(chosen, env, faults, seed)
         if takeover != "none":
-            chosen = self._with_takeover(chosen, driver, env, seed, control, (takeover, takeover_steps))
+            chosen = self._with_takeover(
+                chosen, driver, env, seed, control, (takeover, takeover_steps, takeover_until)
+            )
         self.driver = chosen
         yield from run_episode(
             env,
@@ -124,7 +127,7 @@ class EpisodeRunner:
         env: TaskEnv,
         seed: int,
         control: EpisodeControl | None,
-        how: tuple[TakeoverMode, int],
+        how: tuple[TakeoverMode, int, TakeoverUntil],
     ) -> TakeoverDriver:
         if name == "expert":
             raise VlaprobeError(
@@ -138,7 +141,7 @@ class EpisodeRunner:
             if isinstance(chosen, DaggerDriver)
             else self._make_driver("expert", env, self.policy, seed, 0.0)
         )
-        return TakeoverDriver(chosen, expert, control, how[1], how[0])
+        return TakeoverDriver(chosen, expert, control, how[1], how[0], how[2])
 
     def close(self) -> None:
         self.envs.close()

@@ -8,7 +8,17 @@ import { actingAt, actingText, alarmsUntil, takeoversUntil } from "../lib/takeov
 const WHO = { expert: "EXPERT ACTING", policy: "POLICY ACTING" } as const;
 
 /** Rendered only for an episode with takeovers (or a recording whose steps carry alarms or takeovers). */
-export function TakeoverPanel({ episode, index, length }: { episode: EpisodeData; index: number; length: number | null }) {
+export function TakeoverPanel({
+  episode,
+  index,
+  length,
+  until = "steps",
+}: {
+  episode: EpisodeData;
+  index: number;
+  length: number | null;
+  until?: "subgoal" | "steps";
+}) {
   const steps = episode.steps;
   const mode = episode.start.takeover ?? "none";
   const alarms = alarmsUntil(steps, index);
@@ -21,7 +31,7 @@ export function TakeoverPanel({ episode, index, length }: { episode: EpisodeData
       <h2 id="takeover-h">Takeover ({mode === "random" ? "random control" : "the cognition's alarm"})</h2>
       {acting && (
         <p className={`acting ${acting.who}`} data-testid="acting" data-who={acting.who}>
-          <strong>{WHO[acting.who]}</strong> {actingText(acting, length)}
+          <strong>{WHO[acting.who]}</strong> {actingText(acting, length, until)}
         </p>
       )}
       <p className="muted" data-testid="takeover-count">

@@ -36,4 +36,7 @@ test("the acting line names the takeover, its progress and its reason", () => {
     "the scripted expert acts: takeover 1, action 2 of 60 since step 2 (violation: on and inside)",
   );
   expect(actingText({ who: "expert", takeover: tk(2) }, null)).toContain("action 2 since step 2");
+  expect(actingText({ who: "expert", takeover: tk(2) }, 150, "subgoal")).toBe(
+    "the scripted expert acts: takeover 1, action 2 of at most 150, until its subgoal is done, since step 2 (violation: on and inside)",
+  );
 });

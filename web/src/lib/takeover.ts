@@ -55,10 +55,13 @@ export function alarmText(alarm: Alarm): string {
   return parts.join(" · ");
 }
 
-/** One line for the shown step: who acts, and in a takeover which one, since when and why. */
-export function actingText(acting: Acting, length: number | null): string {
+/**
+ * One line for the shown step: who acts, and in a takeover which one, since when and why. `length`: the
+ * server's --takeover-steps, the cap of a takeover under `until` "subgoal" (it hands back once its subgoal is done).
+ */
+export function actingText(acting: Acting, length: number | null, until: "subgoal" | "steps" = "steps"): string {
   const t = acting.takeover;
   if (!t) return "the policy acts";
-  const of = length ? ` of ${length}` : "";
+  const of = !length ? "" : until === "subgoal" ? ` of at most ${length}, until its subgoal is done,` : ` of ${length}`;
   return `the scripted expert acts: takeover ${t.index}, action ${t.steps}${of} since step ${t.start} (${t.reason})`;
 }
