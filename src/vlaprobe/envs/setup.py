@@ -43,9 +43,14 @@ def _choose_gl_backend() -> None:
         os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 
-def _config_dir() -> Path:
+def _config_dir(root: Path) -> Path:
+    """The config folder of the LIBERO installed at ``root``: one per install, because LIBERO re-reads the file
+    at every path lookup, and two checkouts sharing one folder rewrote each other's paths under running
+    episodes (a removed checkout's then ended them)."""
+    import hashlib
+
     base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
-    return base / "vlaprobe" / "libero"
+    return base / "vlaprobe" / "libero" / hashlib.sha256(str(root.resolve()).encode()).hexdigest()[:16]
 
 
 def _write_libero_config() -> None:
@@ -61,7 +66,7 @@ def _write_libero_config() -> None:
     if spec is None or not spec.submodule_search_locations:
         raise VlaprobeError("LIBERO is not installed; run `bash scripts/setup.sh` (or `make setup`) first")
     root = Path(next(iter(spec.submodule_search_locations))) / "libero"
-    cfg_dir = _config_dir()
+    cfg_dir = _config_dir(root)
     cfg_dir.mkdir(parents=True, exist_ok=True)
     text = "".join(
         f"{key}: {value}\n"
