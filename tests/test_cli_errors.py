@@ -413,20 +413,6 @@ def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.Captu
             ["collect", "--suite", "libero_10", "--tasks", "9", "--out", "OUT"],
             "libero_10 task 9: the scripted expert has no skill for the goal conjunct Close(microwave_1)",
         ),
-        (  # In a container: the expert does not put a knocked-off item back
-            [
-                "collect",
-                "--suite",
-                "libero_object",
-                "--tasks",
-                "0",
-                "--perturb",
-                "drop=0.5,knock_off=0.3",
-                "--out",
-                "OUT",
-            ],
-            "--perturb knock_off: libero_object task 0's goal In(",
-        ),
         (
             ["collect", "--suite", "libero_goal", "--tasks", "3", "--perturb", "drop=0.5", "--out", "OUT"],
             "--perturb needs a goal of one On(a, b) between objects or one In(a, b) into a movable object's "

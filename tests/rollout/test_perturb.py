@@ -11,7 +11,15 @@ from tests.collection.fakes import GOAL, SCENE, FakeEnv, FakeExpert, FakePolicy,
 from vlaprobe.configs.policy import PolicyConfig
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.rollout import EpisodeControl, run_episode
-from vlaprobe.rollout.perturb import CLEARANCE, DROP_STEPS, WORKSPACE, Perturber, PerturbSpec, free_spot
+from vlaprobe.rollout.perturb import (
+    CLEARANCE,
+    DROP_STEPS,
+    KNOCK_WAIT,
+    WORKSPACE,
+    Perturber,
+    PerturbSpec,
+    free_spot,
+)
 from vlaprobe.symbols import WorldState
 
 
@@ -79,7 +87,9 @@ def test_perturber_draws_from_the_seed_and_fires_at_its_moments() -> None:
     for _ in range(knock):  # success with nothing grasped: the knock-off fires after `knock` rows
         assert a.observe(t, world(on_table), False, True, control) == ""
         t += 1
+    assert control.success_hold == KNOCK_WAIT  # the knock-off is still to come: a success is held open
     assert a.observe(t, world(on_table), False, True, control) == "knock_off"
+    assert control.success_hold == 0
     name, xy = control.take_move()  # type: ignore[misc]
     assert name == GOAL.pick and 0.12 <= np.linalg.norm(np.asarray(xy) - on_table[1, :2]) <= 0.22
     assert a.observe(t + 1, world(on_table), False, True, control) == ""  # each fires once
@@ -97,3 +107,27 @@ def test_the_loop_applies_a_move_before_the_next_observation_and_marks_the_row()
             control.move("bowl", (0.05, 0.1))
     assert env.moves == [(1, "bowl", (0.05, 0.1))]
     assert [r.perturbation for r in rows[:3]] == ["", "move", ""] and rows[1].perturbed
+
+
+def test_a_pending_knock_off_holds_the_success_open_and_nothing_else_does() -> None:
+    held, free = EpisodeControl(), EpisodeControl()
+    w = world(np.array([[0.0, 0.0, 0.94], [0.1, 0.1, 0.94], [-0.1, 0.2, 0.94]]))
+    Perturber(PerturbSpec(knock_off=1.0), 3, SCENE, GOAL).observe(0, w, False, False, held)
+    Perturber(PerturbSpec(drop=1.0, displace=1.0), 3, SCENE, GOAL).observe(0, w, False, False, free)
+    assert held.success_hold == KNOCK_WAIT and free.success_hold == 0
+    with pytest.raises(VlaprobeError, match="0 or more rows"):
+        held.hold_success(-1)
+
+
+@pytest.mark.parametrize("hold", [0, 3])
+def test_the_loop_ends_a_held_success_after_the_hold(hold: int) -> None:
+    init = next(i for i in range(12) if succeeds(0, i))
+    env, control = FakeEnv(0, None), EpisodeControl()
+    control.hold_success(hold)
+    rows = list(
+        run_episode(
+            env, FakePolicy(PolicyConfig()), FakeExpert(env, 0), init=init, max_steps=40, control=control
+        )
+    )
+    onset = next(r.t for r in rows if r.success)
+    assert rows[-1].terminal and rows[-1].t == onset + hold and all(r.success for r in rows[onset:])

@@ -76,7 +76,7 @@ def check_collect_suite(cfg: CollectConfig, prefix: str = "") -> None:
 
     known = check_tasks(cfg.tasks, cfg.env.suite, f"--{prefix}tasks")
     check_inits(cfg.env, cfg.tasks)
-    spec = PerturbSpec.parse(cfg.perturb, f"--{prefix}perturb")
+    PerturbSpec.parse(cfg.perturb, f"--{prefix}perturb")
     FaultSpec.parse(cfg.expert_faults, f"--{prefix}expert-faults")
     if cfg.env.suite != "libero_spatial":  # every LIBERO-spatial goal is the rim pick's
         from vlaprobe.experts.planner import check_tasks_plannable
@@ -89,7 +89,6 @@ def check_collect_suite(cfg: CollectConfig, prefix: str = "") -> None:
             perturb=bool(cfg.perturb),
             chosen=bool(cfg.tasks),
             flag=f"--{prefix}tasks",
-            knock_off=spec.knock_off > 0,
         )
 
 

@@ -103,15 +103,12 @@ def check_tasks_plannable(
     *,
     chosen: bool = True,
     flag: str = "--tasks",
-    knock_off: bool = False,
 ) -> None:
     """Before a collection: with the expert (``expert``) every task's goal must have skills, and ``--perturb``
     (``perturb``) needs a goal that carries one object onto or into another (what to drop, displace or knock
     off: :func:`~vlaprobe.envs.bddl_scene.carried_object_goal`); one line names the task. ``chosen``: ``tasks``
     were named (``flag``); else they are the whole suite, and the line names every task left without a skill and
-    the ``flag`` that selects the others. ``knock_off``: the perturbations include a knock-off, which an ``In``
-    goal cannot take (the item is still held when ``In`` first holds, and the expert does not put a knocked-off
-    item back once its last skill is done; docs/collection.md)."""
+    the ``flag`` that selects the others."""
     from vlaprobe.envs.bddl_scene import carried_object_goal, task_bddl, task_scene
 
     refused = unplannable_tasks(env, tasks) if expert else {}
@@ -131,11 +128,6 @@ def check_tasks_plannable(
             raise VlaprobeError(
                 f"--perturb needs a goal of one On(a, b) between objects or one In(a, b) into a movable object's "
                 f"region (a basket); {env.suite} task {task}'s goal is {problem.goal}: collect it without --perturb"
-            )
-        if knock_off and problem.goal.conjuncts[0].predicate == "In":
-            raise VlaprobeError(
-                f"--perturb knock_off: {env.suite} task {task}'s goal {problem.goal} puts the item In a container, "
-                "where the expert does not put a knocked-off item back; use drop and displace (knock_off=0)"
             )
 
 

@@ -135,6 +135,7 @@ class EpisodeControl:
         self._move: tuple[str, tuple[float, float]] | None = None
         self._takeover: str | None = None
         self._hand_back: str | None = None
+        self._success_hold = 0
 
     def stop(self) -> None:
         """End the episode after the current step (a paused loop wakes up and ends)."""
@@ -159,6 +160,20 @@ class EpisodeControl:
         """Move object ``name`` to (x, y) on the table before the next observation (the driver re-plans)."""
         with self._lock:
             self._move = (name, (float(xy[0]), float(xy[1])))
+
+    def hold_success(self, rows: int) -> None:
+        """Keep a successful episode going for at least ``rows`` rows after its success onset (0: no hold; the
+        episode's ``post_success_steps`` still apply): a perturbation due after the success (a knock-off, which
+        waits for the release) must come before the episode ends."""
+        if rows < 0:
+            raise VlaprobeError(f"hold_success needs 0 or more rows, got {rows}")
+        with self._lock:
+            self._success_hold = rows
+
+    @property
+    def success_hold(self) -> int:
+        """Rows after the success onset the episode is held open for (:meth:`hold_success`)."""
+        return self._success_hold
 
     def take_over(self, reason: str) -> None:
         """Hand the next actions to the scripted expert (``--takeover``; ``reason`` is recorded with it)."""
@@ -276,7 +291,8 @@ def run_episode(
     after the last action is not recorded: nothing was learned from it and no action follows), or when
     ``control`` is stopped (then no further row is yielded; the last one yielded is not marked terminal).
     With ``post_success_steps == 0`` the success observation is the last row: it is the first state in which
-    the goal atom holds. Once ``control`` has perturbed the episode, a success that is lost again (an object
+    the goal atom holds. ``control`` may hold a success open longer (:meth:`EpisodeControl.hold_success`: a
+    knock-off still to come). Once ``control`` has perturbed the episode, a success that is lost again (an object
     knocked off its target) no longer counts: the episode goes on until the task succeeds anew.
     """
     if max_steps < 1:
@@ -296,7 +312,8 @@ def run_episode(
             obs = env.place_object(*move)
             success.perturbed = True
         success.observe(t, obs.success)
-        reached = success.step is not None and t >= success.step + post_success_steps
+        after = post_success_steps if control is None else max(post_success_steps, control.success_hold)
+        reached = success.step is not None and t >= success.step + after
         terminal = reached or t == max_steps
         if terminal and success.step is None:
             break

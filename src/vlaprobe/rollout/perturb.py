@@ -37,6 +37,10 @@ DROP_AWAY = 0.12
 table, not onto the target (which would end the task without a re-grasp)."""
 KNOCK_DISTANCE = (0.12, 0.22)
 """Distance range (metres) of a knocked-off object's landing spot from the place target's origin."""
+KNOCK_WAIT = 80
+"""Rows after the success onset an episode with a knock-off still to come is held open for: the knock-off waits
+for the release (an ``In`` goal holds on contact, ~45 rows before the expert lets go; with
+``--post-success-steps 0`` the success row would otherwise end the episode). After it the episode ends."""
 
 
 def parse_kinds(
@@ -161,7 +165,12 @@ class Perturber:
         self, t: int, world: WorldState, grasped: bool, success: bool, control: EpisodeControl
     ) -> str:
         """Look at row ``t`` (its world, whether the pick object is grasped, the task's success); request
-        the perturbation due now from ``control``. Returns the kind requested, or ""."""
+        the perturbation due now from ``control``. Returns the kind requested, or "".
+
+        While a knock-off is still to come, ``control`` holds a success open for :data:`KNOCK_WAIT` rows (set
+        from the first row on: the success row may be the last one otherwise)."""
+        waiting = any(p.kind == "knock_off" and p.row is None for p in self.planned)
+        control.hold_success(KNOCK_WAIT if waiting else 0)
         self._grasped_ever |= grasped
         lifted = world.aabb_lo[self._pick, 2] - world.table_height > LIFTED
         away = np.linalg.norm(world.pos[self._pick, :2] - world.pos[self._place, :2]) > DROP_AWAY
@@ -182,6 +191,7 @@ class Perturber:
                 if xy is None:
                     continue
                 control.move(self.goal.pick, xy)
+                control.hold_success(0)
             else:
                 continue
             p.row = t + 1  # the next observation is the first one the perturbation changed
