@@ -25,6 +25,8 @@ The controller (actions, damping, integral term) is :class:`~vlaprobe.experts.ba
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from vlaprobe.envs.libero import LiberoTaskEnv
@@ -142,20 +144,12 @@ class RimPickPlace(ArmSkill):
         sides nearer the robot win (far reaches run into the elbow's limit)."""
         self._plan_xy = 0.5 * (lo[:2] + hi[:2])
         centre, radius = self._rim(lo, hi)
-        gripper = self._gripper_points()
         # Grip heights (relative to the rim) at which the gripper is checked: the candidate depths, then the
         # way up to the approach height. A grasp's clearance is the least over its depth and every level above.
         levels = np.concatenate(
             [-np.array(GRASP_DEPTHS), np.linspace(-GRASP_DEPTHS[-1], APPROACH_ABOVE_RIM, 6)[1:]]
         )
-        # Only geoms that reach up into the swept height matter (those below were cut at the object's bottom).
-        box_centre, box_rot, box_half = _clip_below(*self._obstacle_boxes(), lo[2] + SUPPORT_SLACK)
-        extent = np.einsum("bij,bj->bi", np.abs(box_rot), box_half)
-        top = hi[2] + APPROACH_ABOVE_RIM - float(gripper[:, 2].min()) + CLEARANCE_CAP  # site z points down
-        low = box_centre[:, 2] - extent[:, 2] < top
-        box_centre, box_rot, box_half, extent = box_centre[low], box_rot[low], box_half[low], extent[low]
-        reach_xy = float(np.linalg.norm(gripper[:, :2], axis=1).max()) + CLEARANCE_CAP
-        up = np.array([0.0, 0.0, 1.0])
+        sweep = self._sweep(lo, hi, levels)
 
         current = self._current_finger_axis()
         base = self._data.xpos[self._robot_base]
@@ -166,16 +160,7 @@ class RimPickPlace(ArmSkill):
             axis = self._wrist_axis(side)
             grip = centre + (radius - GRIP_INSET) * side
             grip[2] = hi[2]
-            # Geoms within the gripper's horizontal reach from this grip point.
-            gap_xy = np.maximum(np.abs(box_centre[:, :2] - grip[:2]) - extent[:, :2], 0.0)
-            near = np.linalg.norm(gap_xy, axis=1) < reach_xy
-            per_level = np.ones(len(levels))
-            if near.any():
-                points = grip + levels[:, None, None] * up + gripper @ _down_rotation(axis).T
-                distance = _box_distance(
-                    points.reshape(-1, 3), box_centre[near], box_rot[near], box_half[near]
-                )
-                per_level = distance.reshape(len(levels), -1).min(axis=1)
+            per_level = sweep(grip, axis)
             turn = float(np.arccos(np.clip(axis @ current, -1.0, 1.0)))
             reach = float(np.linalg.norm(grip[:2] - base[:2]))
             blocked = any(side @ b > np.cos(BLOCKED_ANGLE) for b in self._blocked)
@@ -192,6 +177,35 @@ class RimPickPlace(ArmSkill):
         k, self._depth = self._clear_for_arm(candidates, sides)
         self._side = sides[k]
         self._finger_axis = self._wrist_axis(sides[k])
+
+    def _sweep(
+        self, lo: np.ndarray, hi: np.ndarray, levels: np.ndarray
+    ) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+        """A function of (grip point at the object's top, finger axis) giving, per grip height in ``levels``
+        (relative to that point), the least distance of the gripper's collision boxes from every other geom
+        (1 where none is near). What the object (``lo``, ``hi``) stands on is cut away: the fingertips stay
+        above it."""
+        gripper = self._gripper_points()
+        # Only geoms that reach up into the swept height matter (those below were cut at the object's bottom).
+        box_centre, box_rot, box_half = _clip_below(*self._obstacle_boxes(), lo[2] + SUPPORT_SLACK)
+        extent = np.einsum("bij,bj->bi", np.abs(box_rot), box_half)
+        top = hi[2] + float(levels.max()) - float(gripper[:, 2].min()) + CLEARANCE_CAP  # site z points down
+        low = box_centre[:, 2] - extent[:, 2] < top
+        box_centre, box_rot, box_half, extent = box_centre[low], box_rot[low], box_half[low], extent[low]
+        reach_xy = float(np.linalg.norm(gripper[:, :2], axis=1).max()) + CLEARANCE_CAP
+        up = np.array([0.0, 0.0, 1.0])
+
+        def clearance(grip: np.ndarray, axis: np.ndarray) -> np.ndarray:
+            # Geoms within the gripper's horizontal reach from this grip point.
+            gap_xy = np.maximum(np.abs(box_centre[:, :2] - grip[:2]) - extent[:, :2], 0.0)
+            near = np.linalg.norm(gap_xy, axis=1) < reach_xy
+            if not near.any():
+                return np.ones(len(levels))
+            points = grip + levels[:, None, None] * up + gripper @ _down_rotation(axis).T
+            distance = _box_distance(points.reshape(-1, 3), box_centre[near], box_rot[near], box_half[near])
+            return distance.reshape(len(levels), -1).min(axis=1)
+
+        return clearance
 
     def _clear_for_arm(
         self, candidates: list[tuple[float, int, float, np.ndarray]], sides: np.ndarray
