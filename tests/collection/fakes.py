@@ -53,6 +53,7 @@ class FakeEnv:
         self.num_init_states = NUM_INITS
         self.scene, self.goal, self.goal_conjunction = self.SCENES.get(task, SCENE), GOAL, GOAL_CONJUNCTION
         self.perturb_goal = GOAL
+        self.robot_base = (-0.66, 0.0)
         self.labeler = Labeler(self.scene, GOAL)
         self.delay = float(os.environ.get("FAKE_STEP_SECONDS", "0"))
 

@@ -1,5 +1,6 @@
 """What ``--perturb`` acts on (``carried_object_goal``), on hand-made scenes and goals: one ``On`` between
-objects or one ``In`` into a movable object's region (a basket); drawers, fixtures' regions and several
+objects, one ``In`` into a movable object's region (a basket), one ``On``/``In`` onto or into a region of a fixture
+without a joint (a cabinet's top, a microwave); drawers, the table's placement regions, opening and several
 conjuncts stay refused. The labeler's ``pick_place_goal`` is unchanged (no ``In``)."""
 
 from __future__ import annotations
@@ -24,8 +25,10 @@ KITCHEN = Scene(
     region_parent={
         "wooden_cabinet_1_top_region": "wooden_cabinet_1",
         "microwave_1_heating_region": "microwave_1",
+        "wooden_cabinet_1_top_side": "wooden_cabinet_1",
     },
     receptacles=("microwave_1_heating_region",),
+    surfaces=("wooden_cabinet_1_top_side",),
 )
 
 
@@ -48,12 +51,21 @@ def test_on_between_objects_is_the_pick_place_goal() -> None:
     )
 
 
-def test_drawers_fixtures_and_conjunctions_are_refused() -> None:
+def test_a_fixture_region_without_a_joint_is_the_place_itself() -> None:
+    for conjunct in [
+        ("On", ("akita_black_bowl_1", "wooden_cabinet_1_top_side")),  # a fixture's surface
+        ("In", ("akita_black_bowl_1", "microwave_1_heating_region")),  # a fixture's receptacle
+    ]:
+        assert carried_object_goal(goal(conjunct), KITCHEN) == Goal("akita_black_bowl_1", conjunct[1][1])
+
+
+def test_drawers_table_regions_openings_and_conjunctions_are_refused() -> None:
     refused = [
         goal(("In", ("akita_black_bowl_1", "wooden_cabinet_1_top_region"))),  # a drawer
-        goal(("In", ("akita_black_bowl_1", "microwave_1_heating_region"))),  # a fixture's receptacle
+        goal(("On", ("plate_1", "main_table_stove_front_region"))),  # a placement region of the table: a push
         goal(("Open", ("wooden_cabinet_1_top_region",))),
         goal(("In", ("basket_1", "basket_1_contain_region"))),  # the basket into itself
+        goal(("On", ("ketchup_1", "basket_1_contain_region"))),  # On a movable receptacle's region
     ]
     for g in refused:
         assert carried_object_goal(g, KITCHEN if "basket" not in str(g) else BASKET) is None, g

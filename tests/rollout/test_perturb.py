@@ -14,13 +14,15 @@ from vlaprobe.rollout import EpisodeControl, run_episode
 from vlaprobe.rollout.perturb import (
     CLEARANCE,
     DROP_STEPS,
+    KNOCK_ROOM,
     KNOCK_WAIT,
+    REACH,
     WORKSPACE,
     Perturber,
     PerturbSpec,
     free_spot,
 )
-from vlaprobe.symbols import WorldState
+from vlaprobe.symbols import Goal, WorldState
 
 
 def test_spec_parses_kinds_and_refuses_unknown_kinds_and_bad_probabilities() -> None:
@@ -131,3 +133,47 @@ def test_the_loop_ends_a_held_success_after_the_hold(hold: int) -> None:
     )
     onset = next(r.t for r in rows if r.success)
     assert rows[-1].terminal and rows[-1].t == onset + hold and all(r.success for r in rows[onset:])
+
+
+def test_a_fixture_region_place_is_read_from_the_region_sites() -> None:
+    """Onto a fixture's region: the knock-off lands 12-22 cm from the region's site, not from an object."""
+    pos = np.array([[0.0, 0.0, 0.94], [0.1, 0.1, 0.94], [-0.1, 0.2, 0.94]])
+    w = dataclasses.replace(world(pos), region_pos=np.array([[-0.05, 0.05, 1.0]]))
+    perturber = Perturber(PerturbSpec(knock_off=1.0), 3, SCENE, Goal(pick="bowl", place="cabinet_top"))
+    assert np.array_equal(perturber.place_point(w), [-0.05, 0.05, 1.0])
+    control, t = EpisodeControl(), 0
+    while not perturber.observe(t, w, False, True, control):
+        t += 1
+    _, xy = control.take_move()  # type: ignore[misc]
+    assert 0.12 <= np.linalg.norm(np.asarray(xy) - [-0.05, 0.05]) <= 0.22
+
+
+def test_moved_objects_land_within_reach_of_the_robot_base() -> None:
+    pos = np.array([[0.0, 0.0, 0.94], [0.1, 0.1, 0.94], [-0.1, 0.2, 0.94]])
+    w, base = world(pos, half=0.02), (-0.66, 0.0)
+    rng = np.random.default_rng(0)
+    spots = [free_spot(w, 0, rng, base=base) for _ in range(300)]
+    far = [free_spot(w, 0, rng) for _ in range(300)]
+    assert all(s is not None and np.linalg.norm(s - base) <= REACH for s in spots)
+    assert any(s is not None and np.linalg.norm(s - base) > REACH for s in far)  # the table's far corner
+
+
+def test_a_knock_off_without_a_free_spot_is_given_up_and_releases_the_hold() -> None:
+    crowded = world(np.array([[0.0, 0.0, 0.94], [0.1, 0.1, 0.94], [-0.1, 0.2, 0.94]]), half=0.5)
+    perturber, control = Perturber(PerturbSpec(knock_off=1.0), 3, SCENE, GOAL), EpisodeControl()
+    kinds = [perturber.observe(t, crowded, False, True, control) for t in range(8)]
+    assert kinds == [""] * 8 and perturber.planned[0].missed and perturber.planned[0].row is None
+    assert control.success_hold == 0 and control.take_move() is None
+
+
+def test_a_knock_off_too_late_for_the_budget_is_given_up_and_one_in_time_comes() -> None:
+    """A knock-off due with fewer than KNOCK_ROOM actions left would fail a succeeded episode: given up."""
+    w = world(np.array([[0.0, 0.0, 0.94], [0.1, 0.1, 0.94], [-0.1, 0.2, 0.94]]))
+    spec = PerturbSpec(knock_off=1.0)
+    late, control = Perturber(spec, 3, SCENE, GOAL, max_steps=KNOCK_ROOM + 5), EpisodeControl()
+    start = 10  # success from row 10 on: its knock-off comes due with fewer than KNOCK_ROOM actions left
+    kinds = [late.observe(t, w, False, True, control) for t in range(start, start + 8)]
+    assert kinds == [""] * 8 and late.planned[0].missed and control.success_hold == 0
+    early, control = Perturber(spec, 3, SCENE, GOAL, max_steps=KNOCK_ROOM + 30), EpisodeControl()
+    kinds = [early.observe(t, w, False, True, control) for t in range(start, start + 8)]
+    assert "knock_off" in kinds and not early.planned[0].missed

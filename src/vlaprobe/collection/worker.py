@@ -226,7 +226,7 @@ class Worker:
         spec = PerturbSpec.parse(self.cfg.perturb)
         supervisor = self._supervisor(env, unit, seed)
         control = EpisodeControl() if spec.any or supervisor is not None else None
-        perturber = _perturber(spec, seed, env)
+        perturber = _perturber(spec, seed, env, self.cfg.env.max_steps)
         records = self.runner.run(
             env,
             self.cfg.driver,
@@ -299,15 +299,16 @@ class Worker:
         self.runner.close()
 
 
-def _perturber(spec: PerturbSpec, seed: int, env: TaskEnv) -> Perturber | None:
-    """The episode's perturber (None without ``--perturb``), acting on ``env.perturb_goal``."""
+def _perturber(spec: PerturbSpec, seed: int, env: TaskEnv, max_steps: int) -> Perturber | None:
+    """The episode's perturber (None without ``--perturb``), acting on ``env.perturb_goal`` within the
+    episode's budget of ``max_steps`` actions."""
     if not spec.any:
         return None
     if env.perturb_goal is None:  # check_tasks_plannable refuses such tasks before a collection
         raise VlaprobeError(
             f"--perturb: task {env.task_index}'s goal carries no one object onto or into another"
         )
-    return Perturber(spec, seed, env.scene, env.perturb_goal)
+    return Perturber(spec, seed, env.scene, env.perturb_goal, base=env.robot_base, max_steps=max_steps)
 
 
 class _Outcome:

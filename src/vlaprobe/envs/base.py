@@ -46,6 +46,8 @@ class TaskEnv(Protocol):
     perturb_goal: Goal | None
     """The object ``--perturb`` drops, displaces or knocks off and where it goes
     (:func:`~vlaprobe.envs.bddl_scene.carried_object_goal`); None where the goal carries no one object."""
+    robot_base: tuple[float, float]
+    """(x, y) of the robot's base: a moved object lands within reach of it (``rollout.perturb.REACH``)."""
     labeler: Labeler
     """The ground-truth detectors of this scene: ``labeler(world_state) -> (object bits, action bits)``."""
 

@@ -192,21 +192,23 @@ def pick_place_goal(goal: GoalConjunction, scene: Scene) -> Goal | None:
 
 def carried_object_goal(goal: GoalConjunction, scene: Scene) -> Goal | None:
     """The :class:`~vlaprobe.symbols.Goal` the perturbations of ``--perturb`` act on (what to drop, displace or
-    knock off, and where it goes): a goal of one ``On(a, b)`` between objects of the scene (LIBERO-spatial), or
-    one ``In(a, r)`` where ``r`` is the receptacle region of a movable object (LIBERO-object's basket), its
-    place then that object. None for any other goal (drawers, fixtures' regions, several conjuncts). Only the
-    perturbation path uses it; the labeler keeps :func:`pick_place_goal`."""
+    knock off, and where it goes): a goal of one ``On(a, b)`` between objects of the scene (LIBERO-spatial); one
+    ``In(a, r)`` where ``r`` is the receptacle region of a movable object (LIBERO-object's basket), its place then
+    that object; or one ``On``/``In`` of a pickupable object onto or into a region of a fixture without a joint
+    (a stove's cook region, a cabinet's top, a rack), its place then the region (``WorldState.region_pos``).
+    None for any other goal (drawers: a displacement lands in the drawer skill's way; pushes onto the table's
+    placement regions; opening, turning on; several conjuncts). Only the perturbation path uses it; the labeler
+    keeps :func:`pick_place_goal`."""
     on = pick_place_goal(goal, scene)
     if on is not None or len(goal.conjuncts) != 1:
         return on
     first = goal.conjuncts[0]
-    if (
-        first.predicate != "In"
-        or first.args[0] not in scene.pickupable
-        or first.args[1] not in scene.receptacles
-    ):
+    if first.predicate not in ("On", "In") or first.args[0] not in scene.pickupable:
         return None
-    what, holder = first.args[0], scene.region_parent.get(first.args[1], "")
-    if holder not in scene.pickupable or holder == what:
+    what, region = first.args
+    holder = scene.region_parent.get(region, "")
+    if region not in scene.regions or region in scene.containers or holder == what:
         return None
-    return Goal(pick=what, place=holder)
+    if holder in scene.pickupable:  # a movable receptacle (the basket): its origin moves with it
+        return Goal(pick=what, place=holder) if first.predicate == "In" else None
+    return Goal(pick=what, place=region)

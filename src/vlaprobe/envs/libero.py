@@ -148,6 +148,10 @@ class LiberoTaskEnv:
                 )
         self._gripper_command = -1.0
         self._step = 0
+        model, data = self._sim_env.sim.model._model, self._sim_env.sim.data._data
+        base = data.xpos[model.body(self._sim_env.robots[0].robot_model.root_body).id]
+        self.robot_base = (float(base[0]), float(base[1]))
+        """(x, y) of the robot's base (a mounted arm: fixed for the task)."""
 
     # ----- episode ----------------------------------------------------------------------------------------
     def reset(self, init: int) -> Observation:

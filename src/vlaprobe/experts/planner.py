@@ -126,8 +126,9 @@ def check_tasks_plannable(
         problem = task_bddl(env.suite, task)
         if carried_object_goal(problem.goal, task_scene(env.suite, task, env.assets)) is None:
             raise VlaprobeError(
-                f"--perturb needs a goal of one On(a, b) between objects or one In(a, b) into a movable object's "
-                f"region (a basket); {env.suite} task {task}'s goal is {problem.goal}: collect it without --perturb"
+                f"--perturb needs a goal of one On or In that carries an object onto or into another object or a "
+                f"region of a fixture without a joint (a stove, a cabinet's top, a rack; not a drawer); "
+                f"{env.suite} task {task}'s goal is {problem.goal}: collect it without --perturb"
             )
 
 

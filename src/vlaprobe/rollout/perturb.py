@@ -37,10 +37,18 @@ DROP_AWAY = 0.12
 table, not onto the target (which would end the task without a re-grasp)."""
 KNOCK_DISTANCE = (0.12, 0.22)
 """Distance range (metres) of a knocked-off object's landing spot from the place target's origin."""
+REACH = 0.80
+"""Greatest horizontal distance (metres) of a moved object's landing spot from the robot's base: the farthest
+LIBERO's own init states put an object (0.805 m, LIBERO-spatial task 1; LIBERO-goal 0.725, LIBERO-object 0.755).
+Beyond it the expert cannot reach the object (LIBERO-goal's displacements to 0.84-0.86 m were never grasped)."""
 KNOCK_WAIT = 80
 """Rows after the success onset an episode with a knock-off still to come is held open for: the knock-off waits
 for the release (an ``In`` goal holds on contact, ~45 rows before the expert lets go; with
 ``--post-success-steps 0`` the success row would otherwise end the episode). After it the episode ends."""
+KNOCK_ROOM = 140
+"""Least actions left in the episode's budget for a knock-off to come: the expert's recovery (walk back, pick,
+carry, place) took 105-136 rows on LIBERO-object; a knock-off later than that fails an episode that had
+succeeded, so it is given up (its hold released)."""
 
 
 def parse_kinds(
@@ -104,6 +112,9 @@ class Planned:
     knock_off: rows after success (with nothing grasped) before it."""
     row: int | None = None
     """The row at which it was applied (None: its moment never came)."""
+    missed: bool = False
+    """Its moment came but it was given up: no free spot within reach, or (a knock-off) fewer than
+    :data:`KNOCK_ROOM` actions left."""
 
 
 def free_spot(
@@ -111,11 +122,13 @@ def free_spot(
     index: int,
     rng: np.random.Generator,
     near: np.ndarray | None = None,
+    base: tuple[float, float] | None = None,
     tries: int = 200,
 ) -> np.ndarray | None:
     """An (x, y) on the table where object ``index``'s footprint keeps :data:`CLEARANCE` from every other
-    object (its current spot excluded by 5 cm), inside :data:`WORKSPACE`; with ``near``, at a distance in
-    :data:`KNOCK_DISTANCE` of that point. None when no spot is found."""
+    object (its current spot excluded by 5 cm), inside :data:`WORKSPACE` and, with ``base`` (the robot's base),
+    within :data:`REACH` of it; with ``near``, at a distance in :data:`KNOCK_DISTANCE` of that point. None when no
+    spot is found."""
     half = 0.5 * (world.aabb_hi[index, :2] - world.aabb_lo[index, :2])
     centre_off = world.pos[index, :2] - 0.5 * (world.aabb_hi[index, :2] + world.aabb_lo[index, :2])
     others = [i for i in range(len(world.pos)) if i != index]
@@ -127,6 +140,8 @@ def free_spot(
             angle, dist = rng.uniform(0, 2 * np.pi), rng.uniform(*KNOCK_DISTANCE)
             xy = near[:2] + dist * np.array([np.cos(angle), np.sin(angle)])
         if np.any(xy < lo) or np.any(xy > hi) or np.linalg.norm(xy - world.pos[index, :2]) < 0.05:
+            continue
+        if base is not None and np.linalg.norm(xy - np.asarray(base)) > REACH:
             continue
         box_lo, box_hi = xy - centre_off - half - CLEARANCE, xy - centre_off + half + CLEARANCE
         if all(
@@ -144,6 +159,11 @@ class Perturber:
     seed: int
     scene: Scene
     goal: Goal
+    base: tuple[float, float] | None = None
+    """(x, y) of the robot's base: moved objects land within :data:`REACH` of it (None: anywhere on the table)."""
+    max_steps: int | None = None
+    """The episode's action budget: a knock-off with fewer than :data:`KNOCK_ROOM` actions left is given up
+    (None: no budget)."""
     planned: list[Planned] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -156,10 +176,15 @@ class Perturber:
             if hit:
                 self.planned.append(Planned(kind, after))
         self._pick = self.scene.tabletop.index(self.goal.pick)
-        self._place = self.scene.tabletop.index(self.goal.place)
         self._held_lifted = 0
         self._grasped_ever = False
         self._success_rows = 0
+
+    def place_point(self, world: WorldState) -> np.ndarray:
+        """(3,) where the carried object goes: the place object's origin, or the fixture region's site."""
+        if self.goal.place in self.scene.tabletop:
+            return np.asarray(world.pos[self.scene.tabletop.index(self.goal.place)])
+        return np.asarray(world.region_pos[self.scene.regions.index(self.goal.place)])
 
     def observe(
         self, t: int, world: WorldState, grasped: bool, success: bool, control: EpisodeControl
@@ -169,31 +194,38 @@ class Perturber:
 
         While a knock-off is still to come, ``control`` holds a success open for :data:`KNOCK_WAIT` rows (set
         from the first row on: the success row may be the last one otherwise)."""
-        waiting = any(p.kind == "knock_off" and p.row is None for p in self.planned)
-        control.hold_success(KNOCK_WAIT if waiting else 0)
         self._grasped_ever |= grasped
         lifted = world.aabb_lo[self._pick, 2] - world.table_height > LIFTED
-        away = np.linalg.norm(world.pos[self._pick, :2] - world.pos[self._place, :2]) > DROP_AWAY
+        place = self.place_point(world)
+        away = np.linalg.norm(world.pos[self._pick, :2] - place[:2]) > DROP_AWAY
         self._held_lifted += int(grasped and lifted and away)
         self._success_rows = self._success_rows + 1 if success and not grasped else 0
+        kind = ""
         for p in self.planned:
-            if p.row is not None:
+            if p.row is not None or p.missed:
                 continue
             if p.kind == "drop" and grasped and lifted and away and self._held_lifted > p.after:
                 control.drop(DROP_STEPS)
-            elif p.kind == "displace" and not self._grasped_ever and t == p.after:
-                xy = free_spot(world, self._pick, self.rng)
-                if xy is None:
+            elif p.kind in ("displace", "knock_off") and self._due(p, t):
+                if p.kind == "knock_off" and self.max_steps is not None and self.max_steps - t < KNOCK_ROOM:
+                    p.missed = True  # too late to recover within the budget
+                    continue
+                near = place if p.kind == "knock_off" else None
+                xy = free_spot(world, self._pick, self.rng, near=near, base=self.base)
+                if xy is None:  # no free spot within reach: given up (the episode's attributes omit it)
+                    p.missed = True
                     continue
                 control.move(self.goal.pick, xy)
-            elif p.kind == "knock_off" and self._success_rows > p.after:
-                xy = free_spot(world, self._pick, self.rng, near=world.pos[self._place])
-                if xy is None:
-                    continue
-                control.move(self.goal.pick, xy)
-                control.hold_success(0)
             else:
                 continue
-            p.row = t + 1  # the next observation is the first one the perturbation changed
-            return p.kind
-        return ""
+            p.row, kind = t + 1, p.kind  # the next observation is the first one the perturbation changed
+            break
+        waiting = any(p.kind == "knock_off" and p.row is None and not p.missed for p in self.planned)
+        control.hold_success(KNOCK_WAIT if waiting else 0)
+        return kind
+
+    def _due(self, p: Planned, t: int) -> bool:
+        """A displacement at its row while nothing has been grasped yet; a knock-off after its success rows."""
+        if p.kind == "displace":
+            return not self._grasped_ever and t == p.after
+        return self._success_rows > p.after
