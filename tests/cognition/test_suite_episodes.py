@@ -30,7 +30,11 @@ ONE_TASK: dict[SuiteName, int] = {
     "libero_10": 2,  # TurnOn(stove) & On(moka pot, stove): two conjuncts of two kinds
     "libero_90": 0,  # Close(top drawer): the cognition's not(open) within LIBERO's middle band
 }
-POST, MAX_STEPS = 40, 600  # LIBERO's In holds while the object is still held; the expert lets go after
+POST, MAX_STEPS, LET_GO = 60, 600, 40
+"""Rows after LIBERO's success: the cognition's goal comes within ``LET_GO`` of it (LIBERO's ``In`` holds while the
+object is still held; the expert lets go after) and holds at the episode's end, ``POST`` rows after it: the rising
+fingers may brush a tall object again (LIBERO-90 task 79: both fingers touch the standing book at rows 123-138,
+23-38 after the success, so ``grasped`` holds again and the cognition reports a regression until they part)."""
 NEGATED = {"Close": "Open", "TurnOff": "TurnOn"}
 """LIBERO's predicates the cognition reads as the negation of an atom (``not(open(D))``, ``not(turned-on(K))``):
 LIBERO's own are stricter (a drawer half out is neither open nor closed; docs/symbols.md)."""
@@ -113,7 +117,7 @@ def test_rules_hold_and_the_goal_is_tracked_on_expert_episodes(suite: SuiteName,
     assert steps[-1].goal_reached and steps[-1].progress == 1.0, (suite, task, steps[-1].subgoals)
     reached = next(s.t for s in steps if s.goal_reached)  # placed and let go: never before LIBERO's success,
     earliest = ep.two_valued.index(True)  # or, for a Close/TurnOff, once its atom is false (docs/symbols.md)
-    assert earliest - 1 <= reached <= success_step + POST, (suite, task, reached, earliest, success_step)
+    assert earliest - 1 <= reached <= success_step + LET_GO, (suite, task, reached, earliest, success_step)
 
 
 def report(suite: SuiteName, tasks: list[int]) -> None:

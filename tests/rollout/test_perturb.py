@@ -21,6 +21,7 @@ from vlaprobe.rollout.perturb import (
     Perturber,
     PerturbSpec,
     free_spot,
+    nearest_free_spot,
 )
 from vlaprobe.symbols import Goal, WorldState
 
@@ -177,3 +178,25 @@ def test_a_knock_off_too_late_for_the_budget_is_given_up_and_one_in_time_comes()
     early, control = Perturber(spec, 3, SCENE, GOAL, max_steps=KNOCK_ROOM + 30), EpisodeControl()
     kinds = [early.observe(t, w, False, True, control) for t in range(start, start + 8)]
     assert "knock_off" in kinds and not early.planned[0].missed
+
+
+def test_a_knock_off_from_a_crowded_fixture_lands_at_the_nearest_free_spot() -> None:
+    """No spot 12-22 cm from the region's site is free (object 1 covers them): the nearest free one is taken,
+    for a fixture's region only (a knock-off off an object is given up, so spatial draws stay as they were)."""
+    pos = np.array([[0.0, 0.27, 0.94], [0.0, 0.0, 0.94], [-0.2, 0.28, 0.94]])
+    half = np.array([[0.01, 0.01, 0.01], [0.23, 0.23, 0.01], [0.01, 0.01, 0.01]])
+    w = dataclasses.replace(world(pos), aabb_lo=pos - half, aabb_hi=pos + half, region_pos=np.zeros((1, 3)))
+    rng = np.random.default_rng(0)
+    assert free_spot(w, 0, rng, near=np.zeros(3)) is None
+    xy = nearest_free_spot(w, 0, rng, np.zeros(3))
+    assert xy is not None and xy[1] >= 0.23 + CLEARANCE + 0.01
+    # the free band y in [0.26, 0.30] (5 cm around the object's own spot excluded) lies 0.26-0.37 m from the
+    # site: the nearest of 400 draws is near its low end
+    assert np.linalg.norm(xy) < 0.31
+    for place, moved in (("cabinet_top", True), ("plate", False)):
+        perturber, control = (
+            Perturber(PerturbSpec(knock_off=1.0), 3, SCENE, Goal("bowl", place)),
+            EpisodeControl(),
+        )
+        kinds = [perturber.observe(t, w, False, True, control) for t in range(8)]
+        assert ("knock_off" in kinds) is moved and perturber.planned[0].missed is not moved

@@ -129,9 +129,6 @@ def free_spot(
     object (its current spot excluded by 5 cm), inside :data:`WORKSPACE` and, with ``base`` (the robot's base),
     within :data:`REACH` of it; with ``near``, at a distance in :data:`KNOCK_DISTANCE` of that point. None when no
     spot is found."""
-    half = 0.5 * (world.aabb_hi[index, :2] - world.aabb_lo[index, :2])
-    centre_off = world.pos[index, :2] - 0.5 * (world.aabb_hi[index, :2] + world.aabb_lo[index, :2])
-    others = [i for i in range(len(world.pos)) if i != index]
     lo, hi = np.array(WORKSPACE[0]), np.array(WORKSPACE[1])
     for _ in range(tries):
         if near is None:
@@ -139,16 +136,44 @@ def free_spot(
         else:
             angle, dist = rng.uniform(0, 2 * np.pi), rng.uniform(*KNOCK_DISTANCE)
             xy = near[:2] + dist * np.array([np.cos(angle), np.sin(angle)])
-        if np.any(xy < lo) or np.any(xy > hi) or np.linalg.norm(xy - world.pos[index, :2]) < 0.05:
-            continue
-        if base is not None and np.linalg.norm(xy - np.asarray(base)) > REACH:
-            continue
-        box_lo, box_hi = xy - centre_off - half - CLEARANCE, xy - centre_off + half + CLEARANCE
-        if all(
-            np.any(box_hi < world.aabb_lo[j, :2]) or np.any(box_lo > world.aabb_hi[j, :2]) for j in others
-        ):
+        if _free(world, index, xy, base):
             return xy
     return None
+
+
+def nearest_free_spot(
+    world: WorldState,
+    index: int,
+    rng: np.random.Generator,
+    near: np.ndarray,
+    base: tuple[float, float] | None = None,
+    tries: int = 400,
+) -> np.ndarray | None:
+    """Of ``tries`` spots drawn over :data:`WORKSPACE`, the free one (as in :func:`free_spot`) nearest ``near``:
+    where a fixture stands among other things (LIBERO-goal's cabinet between the plate and the rack) no spot
+    within :data:`KNOCK_DISTANCE` of its region is free. None when none is free."""
+    lo, hi = np.array(WORKSPACE[0]), np.array(WORKSPACE[1])
+    spots = [xy for xy in rng.uniform(lo, hi, size=(tries, 2)) if _free(world, index, xy, base)]
+    if not spots:
+        return None
+    return min(spots, key=lambda xy: float(np.linalg.norm(xy - near[:2])))
+
+
+def _free(world: WorldState, index: int, xy: np.ndarray, base: tuple[float, float] | None) -> bool:
+    """Whether object ``index`` may land with its origin at ``xy`` (the conditions of :func:`free_spot`)."""
+    lo, hi = np.array(WORKSPACE[0]), np.array(WORKSPACE[1])
+    if np.any(xy < lo) or np.any(xy > hi) or np.linalg.norm(xy - world.pos[index, :2]) < 0.05:
+        return False
+    if base is not None and np.linalg.norm(xy - np.asarray(base)) > REACH:
+        return False
+    half = 0.5 * (world.aabb_hi[index, :2] - world.aabb_lo[index, :2])
+    centre_off = world.pos[index, :2] - 0.5 * (world.aabb_hi[index, :2] + world.aabb_lo[index, :2])
+    box_lo, box_hi = xy - centre_off - half - CLEARANCE, xy - centre_off + half + CLEARANCE
+    return all(
+        np.any(box_hi < world.aabb_lo[j, :2]) or np.any(box_lo > world.aabb_hi[j, :2])
+        for j in range(len(world.pos))
+        if j != index
+    )
 
 
 @dataclass
@@ -212,6 +237,8 @@ class Perturber:
                     continue
                 near = place if p.kind == "knock_off" else None
                 xy = free_spot(world, self._pick, self.rng, near=near, base=self.base)
+                if xy is None and p.kind == "knock_off" and self.goal.place not in self.scene.tabletop:
+                    xy = nearest_free_spot(world, self._pick, self.rng, place, base=self.base)
                 if xy is None:  # no free spot within reach: given up (the episode's attributes omit it)
                     p.missed = True
                     continue
