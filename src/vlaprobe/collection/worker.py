@@ -37,7 +37,7 @@ from vlaprobe.rollout import (
     make_driver,
 )
 from vlaprobe.rollout.faults import FaultSpec, FaultyExpert
-from vlaprobe.rollout.perturb import KIND_CODE, Perturber, PerturbSpec
+from vlaprobe.rollout.perturb import KIND_CODE, Perturber, PerturbSpec, episode_perturber
 from vlaprobe.rollout.runner import MakeDriver, default_threads
 from vlaprobe.rollout.takeover import Supervisor, TakeoverDriver
 from vlaprobe.symbols import HEADS, Scene
@@ -226,7 +226,7 @@ class Worker:
         spec = PerturbSpec.parse(self.cfg.perturb)
         supervisor = self._supervisor(env, unit, seed)
         control = EpisodeControl() if spec.any or supervisor is not None else None
-        perturber = _perturber(spec, seed, env, self.cfg.env.max_steps)
+        perturber = episode_perturber(spec, seed, env, self.cfg.env.max_steps)
         records = self.runner.run(
             env,
             self.cfg.driver,
@@ -297,18 +297,6 @@ class Worker:
 
     def close(self) -> None:
         self.runner.close()
-
-
-def _perturber(spec: PerturbSpec, seed: int, env: TaskEnv, max_steps: int) -> Perturber | None:
-    """The episode's perturber (None without ``--perturb``), acting on ``env.perturb_goal`` within the
-    episode's budget of ``max_steps`` actions."""
-    if not spec.any:
-        return None
-    if env.perturb_goal is None:  # check_tasks_plannable refuses such tasks before a collection
-        raise VlaprobeError(
-            f"--perturb: task {env.task_index}'s goal carries no one object onto or into another"
-        )
-    return Perturber(spec, seed, env.scene, env.perturb_goal, base=env.robot_base, max_steps=max_steps)
 
 
 class _Outcome:

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vlaprobe.envs.base import TaskEnv
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.rollout.loop import EpisodeControl
 from vlaprobe.symbols import Goal, Scene, WorldState
@@ -256,3 +257,16 @@ class Perturber:
         if p.kind == "displace":
             return not self._grasped_ever and t == p.after
         return self._success_rows > p.after
+
+
+def episode_perturber(spec: PerturbSpec, seed: int, env: TaskEnv, max_steps: int) -> Perturber | None:
+    """The episode's perturber (None without ``--perturb``) as collection, live runs and benches build it: acting
+    on ``env.perturb_goal``, moved objects within reach of ``env.robot_base``, within the episode's budget of
+    ``max_steps`` actions."""
+    if not spec.any:
+        return None
+    if env.perturb_goal is None:  # check_tasks_plannable refuses such tasks before a collection
+        raise VlaprobeError(
+            f"--perturb: task {env.task_index}'s goal carries no one object onto or into another"
+        )
+    return Perturber(spec, seed, env.scene, env.perturb_goal, base=env.robot_base, max_steps=max_steps)
