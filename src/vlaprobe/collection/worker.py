@@ -40,7 +40,7 @@ from vlaprobe.rollout.faults import FaultSpec, FaultyExpert
 from vlaprobe.rollout.perturb import KIND_CODE, Perturber, PerturbSpec
 from vlaprobe.rollout.runner import MakeDriver, default_threads
 from vlaprobe.rollout.takeover import Supervisor, TakeoverDriver
-from vlaprobe.symbols import HEADS, Scene
+from vlaprobe.symbols import HEADS, Goal, Scene
 from vlaprobe.symbols.vocabulary import atom
 
 
@@ -299,16 +299,27 @@ class Worker:
         self.runner.close()
 
 
+def perturb_target(env: TaskEnv) -> Goal | None:
+    """What ``--perturb`` acts on in ``env``: ``env.perturb_goal`` (a goal of one conjunct), else, for a goal of
+    several, the object the expert's plan places last (:func:`~vlaprobe.experts.planner.perturbation_goal`)."""
+    if env.perturb_goal is not None or len(env.goal_conjunction.conjuncts) < 2:
+        return env.perturb_goal
+    from vlaprobe.experts.planner import perturbation_goal
+
+    return perturbation_goal(env.goal_conjunction, env.scene)[0]
+
+
 def _perturber(spec: PerturbSpec, seed: int, env: TaskEnv, max_steps: int) -> Perturber | None:
-    """The episode's perturber (None without ``--perturb``), acting on ``env.perturb_goal`` within the
+    """The episode's perturber (None without ``--perturb``), acting on :func:`perturb_target` within the
     episode's budget of ``max_steps`` actions."""
     if not spec.any:
         return None
-    if env.perturb_goal is None:  # check_tasks_plannable refuses such tasks before a collection
+    goal = perturb_target(env)
+    if goal is None:  # check_tasks_plannable refuses such tasks before a collection
         raise VlaprobeError(
             f"--perturb: task {env.task_index}'s goal carries no one object onto or into another"
         )
-    return Perturber(spec, seed, env.scene, env.perturb_goal, base=env.robot_base, max_steps=max_steps)
+    return Perturber(spec, seed, env.scene, goal, base=env.robot_base, max_steps=max_steps)
 
 
 class _Outcome:
@@ -317,7 +328,7 @@ class _Outcome:
 
     def __init__(self, env: TaskEnv, perturber: Perturber | None, control: EpisodeControl | None) -> None:
         self.perturber, self.control = perturber, control
-        goal = env.perturb_goal  # the carried object's grasp: when a drop may come
+        goal = perturber.goal if perturber is not None else None  # its grasp: when a drop may come
         actions = env.labeler.vocabulary.action_atoms
         self.grasp_col = actions.index(atom("grasped", goal.pick)) if goal is not None else -1
         self.codes: list[int] = []
