@@ -102,7 +102,10 @@ def perturbation_goal(goal: GoalConjunction, scene: Scene) -> tuple[Goal | None,
         c for c in goal.conjuncts if c.predicate in ("In", "On") and c.args == (last.subject, last.target)
     )
     chosen = carried_object_goal(GoalConjunction((conjunct,)), scene)
-    return chosen, "" if chosen is not None else f"its plan ends with {conjunct}"
+    return (
+        chosen,
+        "" if chosen is not None else f"its plan ends with {conjunct}, a place --perturb does not take",
+    )
 
 
 def unplannable_tasks(env: EnvConfig, tasks: tuple[int, ...]) -> dict[int, str]:
