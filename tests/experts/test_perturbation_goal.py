@@ -7,11 +7,14 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
+from tests.collection.fakes import FakeEnv
 
-from vlaprobe.collection.worker import perturb_target
+from vlaprobe.collection.worker import _perturber, perturb_target
 from vlaprobe.envs.bddl_scene import carried_object_goal
 from vlaprobe.experts.planner import perturbation_goal
+from vlaprobe.rollout.perturb import PerturbSpec
 from vlaprobe.symbols import Articulation, Goal, Scene
 from vlaprobe.symbols.goals import Conjunct, GoalConjunction
 
@@ -48,6 +51,8 @@ def goal(*conjuncts: tuple[str, ...]) -> GoalConjunction:
             (("In", "cream_cheese_1", BASKET), ("On", "porcelain_mug_1", "plate_1")),
             Goal("cream_cheese_1", "basket_1"),
         ),
+        # LIBERO-90 task 8: the drawer opened, then the bowl put in
+        ((("Open", DRAWER), ("In", "akita_black_bowl_1", DRAWER)), Goal("akita_black_bowl_1", DRAWER)),
         # LIBERO-10 task 2/8: the stove is turned on first, the pot placed last
         (
             (("TurnOn", "flat_stove_1"), ("On", "cream_cheese_1", "flat_stove_1_cook_region")),
@@ -70,7 +75,10 @@ def test_the_object_placed_last_is_perturbed(conjuncts: tuple[tuple[str, ...], .
             (("In", "butter_1", BASKET), ("On", "plate_1", "main_table_stove_front_region")),
             "ends with push plate_1, not with a pick",
         ),
-        ((("Open", DRAWER), ("In", "butter_1", DRAWER)), f"ends with In(butter_1,{DRAWER}), a place"),
+        (  # LIBERO-10 task 6: the pudding onto a placement region of the table (no site: nowhere to knock from)
+            (("On", "porcelain_mug_1", "plate_1"), ("On", "butter_1", "main_table_plate_right_region")),
+            "ends with On(butter_1,main_table_plate_right_region), a place",
+        ),
         ((("In", "butter_1", BASKET), ("Close", "microwave_1")), "the scripted expert has no plan for it"),
     ],
 )
@@ -104,3 +112,12 @@ def test_the_worker_keeps_the_envs_own_goal_and_asks_the_planner_for_several_con
     assert perturb_target(env) == Goal("akita_black_bowl_1", "plate_1")  # type: ignore[arg-type]
     env.goal_conjunction, env.perturb_goal = goal(("TurnOn", "flat_stove_1")), None
     assert perturb_target(env) is None  # type: ignore[arg-type]
+
+
+def test_the_worker_gives_the_drawers_keep_out_only_to_a_goal_into_a_drawer() -> None:
+    """Other goals keep their perturber as it was (no keep-out: their spots stay bitwise the same)."""
+    env = FakeEnv(0, None)
+    assert _perturber(PerturbSpec(drop=1.0), 0, env, 600).keep_out is None  # type: ignore[union-attr]
+    env.perturb_goal = Goal("bowl", "cabinet_top")  # the fake scene's drawer
+    keep_out = _perturber(PerturbSpec(drop=1.0), 0, env, 600).keep_out  # type: ignore[union-attr]
+    assert keep_out is not None and np.array_equal(keep_out()[0][1], env.drawer_fronts()[0][1])

@@ -319,7 +319,8 @@ def _perturber(spec: PerturbSpec, seed: int, env: TaskEnv, max_steps: int) -> Pe
         raise VlaprobeError(
             f"--perturb: task {env.task_index}'s goal carries no one object onto or into another"
         )
-    return Perturber(spec, seed, env.scene, goal, base=env.robot_base, max_steps=max_steps)
+    keep_out = env.drawer_fronts if goal.place in env.scene.containers else None  # other goals: as before
+    return Perturber(spec, seed, env.scene, goal, env.robot_base, max_steps, keep_out)
 
 
 class _Outcome:

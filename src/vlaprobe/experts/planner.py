@@ -133,8 +133,8 @@ def check_tasks_plannable(
     flag: str = "--tasks",
 ) -> None:
     """Before a collection: with the expert (``expert``) every task's goal must have skills, and ``--perturb``
-    (``perturb``) needs a goal that carries one object onto or into another (what to drop, displace or knock
-    off: :func:`~vlaprobe.envs.bddl_scene.carried_object_goal`); one line names the task. ``chosen``: ``tasks``
+    (``perturb``) needs a goal whose plan ends by carrying one object onto or into another (what to drop,
+    displace or knock off: :func:`perturbation_goal`); one line names the task. ``chosen``: ``tasks``
     were named (``flag``); else they are the whole suite, and the line names every task left without a skill and
     the ``flag`` that selects the others."""
     from vlaprobe.envs.bddl_scene import task_bddl, task_scene
@@ -152,11 +152,11 @@ def check_tasks_plannable(
         )
     for task in tasks if perturb else ():
         problem = task_bddl(env.suite, task)
-        chosen, why = perturbation_goal(problem.goal, task_scene(env.suite, task, env.assets))
-        if chosen is None:
+        target, why = perturbation_goal(problem.goal, task_scene(env.suite, task, env.assets))
+        if target is None:
             raise VlaprobeError(
                 f"--perturb needs a goal whose plan ends by carrying an object onto or into another object or a "
-                f"region of a fixture without a joint (a stove, a cabinet's top, a rack; not a drawer); "
+                f"region of a fixture (a stove, a cabinet's top, a rack, a drawer); "
                 f"{env.suite} task {task}'s goal is {problem.goal}{': ' + why if why else ''}: collect it "
                 f"without --perturb"
             )
