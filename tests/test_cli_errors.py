@@ -415,7 +415,7 @@ def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.Captu
         ),
         (
             ["collect", "--suite", "libero_goal", "--tasks", "5", "--perturb", "drop=0.5", "--out", "OUT"],
-            "(a stove, a cabinet's top, a rack; not a drawer); libero_goal task 5's goal is "
+            "(a stove, a cabinet's top, a rack, a drawer); libero_goal task 5's goal is "
             "On(plate_1,main_table_stove_front_region): collect it without --perturb",
         ),
         (  # several conjuncts: the plan must end with a pick-and-place

@@ -137,17 +137,13 @@ def test_every_task_of_every_suite_reads(suite: str) -> None:
         assert len(scene.close_articulation) == len(scene.openable)
 
 
-def test_perturb_check_accepts_every_basket_task_and_refuses_a_drawer_and_a_push() -> None:
-    """``--perturb`` on LIBERO-object (``In(item, basket_1_contain_region)``) and the goal suite's fixture regions
-    passes the up-front check; the drawer task (``In(bowl, wooden_cabinet_1_top_region)``) and the plate pushed
-    onto the table's region are refused, naming them."""
+def test_perturb_check_accepts_every_basket_task_and_the_drawer_and_refuses_a_push() -> None:
+    """``--perturb`` on LIBERO-object (``In(item, basket_1_contain_region)``), the goal suite's fixture regions
+    and its drawer task (``In(bowl, wooden_cabinet_1_top_region)``) passes the up-front check; the plate pushed
+    onto the table's region is refused, naming it."""
     tasks = tuple(t for t, _ in suite_tasks("libero_object"))
     check_tasks_plannable(EnvConfig(suite="libero_object"), tasks, expert=True, perturb=True)
-    check_tasks_plannable(EnvConfig(suite="libero_goal"), (1, 2, 4, 6, 8, 9), expert=True, perturb=True)
-    with pytest.raises(
-        VlaprobeError, match=r"libero_goal task 3's goal is In\(akita_black_bowl_1,wooden_cab"
-    ):
-        check_tasks_plannable(EnvConfig(suite="libero_goal"), (3,), expert=True, perturb=True)
+    check_tasks_plannable(EnvConfig(suite="libero_goal"), (1, 2, 3, 4, 6, 8, 9), expert=True, perturb=True)
     with pytest.raises(VlaprobeError, match=r"libero_goal task 5's goal is On\(plate_1,main_table_stove"):
         check_tasks_plannable(EnvConfig(suite="libero_goal"), (5,), expert=True, perturb=True)
 

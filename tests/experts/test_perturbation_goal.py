@@ -51,6 +51,8 @@ def goal(*conjuncts: tuple[str, ...]) -> GoalConjunction:
             (("In", "cream_cheese_1", BASKET), ("On", "porcelain_mug_1", "plate_1")),
             Goal("cream_cheese_1", "basket_1"),
         ),
+        # LIBERO-90 task 8: the drawer opened, then the bowl put in
+        ((("Open", DRAWER), ("In", "akita_black_bowl_1", DRAWER)), Goal("akita_black_bowl_1", DRAWER)),
         # LIBERO-10 task 2/8: the stove is turned on first, the pot placed last
         (
             (("TurnOn", "flat_stove_1"), ("On", "cream_cheese_1", "flat_stove_1_cook_region")),
@@ -68,10 +70,6 @@ def test_the_object_placed_last_is_perturbed(conjuncts: tuple[tuple[str, ...], .
         (
             (("Close", DRAWER), ("In", "akita_black_bowl_1", DRAWER)),
             f"ends with close {DRAWER}, not with a pick",
-        ),
-        (  # LIBERO-90 task 8: the drawer opened, then the bowl put in: a drawer, refused as one conjunct is
-            (("Open", DRAWER), ("In", "akita_black_bowl_1", DRAWER)),
-            f"ends with In(akita_black_bowl_1,{DRAWER}), a place",
         ),
         (
             (("In", "butter_1", BASKET), ("On", "plate_1", "main_table_stove_front_region")),

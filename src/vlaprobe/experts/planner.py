@@ -156,7 +156,7 @@ def check_tasks_plannable(
         if target is None:
             raise VlaprobeError(
                 f"--perturb needs a goal whose plan ends by carrying an object onto or into another object or a "
-                f"region of a fixture without a joint (a stove, a cabinet's top, a rack; not a drawer); "
+                f"region of a fixture (a stove, a cabinet's top, a rack, a drawer); "
                 f"{env.suite} task {task}'s goal is {problem.goal}{': ' + why if why else ''}: collect it "
                 f"without --perturb"
             )
