@@ -130,7 +130,7 @@ def run_task(job: tuple[int, str, int, str]) -> list[dict]:
     from vlaprobe.configs.env import EnvConfig
     from vlaprobe.envs.libero import LiberoTaskEnv
     from vlaprobe.rollout import EpisodeControl, ExpertDriver, run_episode
-    from vlaprobe.rollout.perturb import Perturber, PerturbSpec
+    from vlaprobe.rollout.perturb import PerturbSpec, episode_perturber
     from vlaprobe.symbols.vocabulary import atom
 
     records = []
@@ -142,7 +142,7 @@ def run_task(job: tuple[int, str, int, str]) -> list[dict]:
         for init in range(n):
             seed = unit_seed(0, Unit(task, init))
             control = EpisodeControl()
-            perturber = Perturber(spec, seed, env.scene, env.goal)
+            perturber = episode_perturber(spec, seed, env, MAX_STEPS)  # as collection builds it
             obj, act, success = [], [], False
             cpu = time.process_time()
             for r in run_episode(
@@ -157,7 +157,8 @@ def run_task(job: tuple[int, str, int, str]) -> list[dict]:
                 obj.append(r.object_atoms)
                 act.append(r.action_atoms)
                 success = r.success and r.terminal
-                perturber.observe(r.t, r.world, bool(r.action_atoms[grasp]), r.success, control)
+                if perturber is not None:
+                    perturber.observe(r.t, r.world, bool(r.action_atoms[grasp]), r.success, control)
             cpu = time.process_time() - cpu
             placement = env.last_placement if kind == "sampled" else None
             o, a = np.array(obj), np.array(act)
@@ -173,7 +174,7 @@ def run_task(job: tuple[int, str, int, str]) -> list[dict]:
                     "rejected": list(placement.rejected) if placement else [],
                     "perturbations": [
                         _outcome(p.kind, p.row, a[:, grasp], o[:, goal], success)
-                        for p in perturber.planned
+                        for p in (perturber.planned if perturber is not None else [])
                         if p.row is not None
                     ],
                     "object": o.tolist(),

@@ -11,10 +11,9 @@ import numpy as np
 import pytest
 from tests.collection.fakes import FakeEnv
 
-from vlaprobe.collection.worker import _perturber, perturb_target
 from vlaprobe.envs.bddl_scene import carried_object_goal
 from vlaprobe.experts.planner import perturbation_goal
-from vlaprobe.rollout.perturb import PerturbSpec
+from vlaprobe.rollout.perturb import PerturbSpec, episode_perturber, perturb_target
 from vlaprobe.symbols import Articulation, Goal, Scene
 from vlaprobe.symbols.goals import Conjunct, GoalConjunction
 
@@ -117,7 +116,7 @@ def test_the_worker_keeps_the_envs_own_goal_and_asks_the_planner_for_several_con
 def test_the_worker_gives_the_drawers_keep_out_only_to_a_goal_into_a_drawer() -> None:
     """Other goals keep their perturber as it was (no keep-out: their spots stay bitwise the same)."""
     env = FakeEnv(0, None)
-    assert _perturber(PerturbSpec(drop=1.0), 0, env, 600).keep_out is None  # type: ignore[union-attr]
+    assert episode_perturber(PerturbSpec(drop=1.0), 0, env, 600).keep_out is None  # type: ignore[union-attr]
     env.perturb_goal = Goal("bowl", "cabinet_top")  # the fake scene's drawer
-    keep_out = _perturber(PerturbSpec(drop=1.0), 0, env, 600).keep_out  # type: ignore[union-attr]
+    keep_out = episode_perturber(PerturbSpec(drop=1.0), 0, env, 600).keep_out  # type: ignore[union-attr]
     assert keep_out is not None and np.array_equal(keep_out()[0][1], env.drawer_fronts()[0][1])

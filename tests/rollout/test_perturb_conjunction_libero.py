@@ -8,13 +8,12 @@ import numpy as np
 import pytest
 from tests.collection.fakes import FakePolicy
 
-from vlaprobe.collection.worker import perturb_target
 from vlaprobe.configs.env import EnvConfig
 from vlaprobe.configs.policy import PolicyConfig
 from vlaprobe.envs.libero import LiberoTaskEnv
 from vlaprobe.envs.libero_world import HAND_MARGIN
 from vlaprobe.rollout import EpisodeControl, ExpertDriver, run_episode
-from vlaprobe.rollout.perturb import KINDS, Perturber, PerturbSpec
+from vlaprobe.rollout.perturb import KINDS, Perturber, PerturbSpec, perturb_target
 from vlaprobe.symbols import Goal
 from vlaprobe.symbols.vocabulary import atom
 

@@ -37,10 +37,10 @@ from vlaprobe.rollout import (
     make_driver,
 )
 from vlaprobe.rollout.faults import FaultSpec, FaultyExpert
-from vlaprobe.rollout.perturb import KIND_CODE, Perturber, PerturbSpec
+from vlaprobe.rollout.perturb import KIND_CODE, Perturber, PerturbSpec, episode_perturber
 from vlaprobe.rollout.runner import MakeDriver, default_threads
 from vlaprobe.rollout.takeover import Supervisor, TakeoverDriver
-from vlaprobe.symbols import HEADS, Goal, Scene
+from vlaprobe.symbols import HEADS, Scene
 from vlaprobe.symbols.vocabulary import atom
 
 
@@ -226,7 +226,7 @@ class Worker:
         spec = PerturbSpec.parse(self.cfg.perturb)
         supervisor = self._supervisor(env, unit, seed)
         control = EpisodeControl() if spec.any or supervisor is not None else None
-        perturber = _perturber(spec, seed, env, self.cfg.env.max_steps)
+        perturber = episode_perturber(spec, seed, env, self.cfg.env.max_steps)
         records = self.runner.run(
             env,
             self.cfg.driver,
@@ -297,30 +297,6 @@ class Worker:
 
     def close(self) -> None:
         self.runner.close()
-
-
-def perturb_target(env: TaskEnv) -> Goal | None:
-    """What ``--perturb`` acts on in ``env``: ``env.perturb_goal`` (a goal of one conjunct), else, for a goal of
-    several, the object the expert's plan places last (:func:`~vlaprobe.experts.planner.perturbation_goal`)."""
-    if env.perturb_goal is not None or len(env.goal_conjunction.conjuncts) < 2:
-        return env.perturb_goal
-    from vlaprobe.experts.planner import perturbation_goal
-
-    return perturbation_goal(env.goal_conjunction, env.scene)[0]
-
-
-def _perturber(spec: PerturbSpec, seed: int, env: TaskEnv, max_steps: int) -> Perturber | None:
-    """The episode's perturber (None without ``--perturb``), acting on :func:`perturb_target` within the
-    episode's budget of ``max_steps`` actions."""
-    if not spec.any:
-        return None
-    goal = perturb_target(env)
-    if goal is None:  # check_tasks_plannable refuses such tasks before a collection
-        raise VlaprobeError(
-            f"--perturb: task {env.task_index}'s goal carries no one object onto or into another"
-        )
-    keep_out = env.drawer_fronts if goal.place in env.scene.containers else None  # other goals: as before
-    return Perturber(spec, seed, env.scene, goal, env.robot_base, max_steps, keep_out)
 
 
 class _Outcome:

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vlaprobe.envs.base import TaskEnv
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.rollout.loop import EpisodeControl
 from vlaprobe.symbols import Goal, Scene, WorldState
@@ -273,3 +274,28 @@ class Perturber:
         if p.kind == "displace":
             return not self._grasped_ever and t == p.after
         return self._success_rows > p.after
+
+
+def perturb_target(env: TaskEnv) -> Goal | None:
+    """What ``--perturb`` acts on in ``env``: ``env.perturb_goal`` (a goal of one conjunct), else, for a goal of
+    several, the object the expert's plan places last (:func:`~vlaprobe.experts.planner.perturbation_goal`)."""
+    if env.perturb_goal is not None or len(env.goal_conjunction.conjuncts) < 2:
+        return env.perturb_goal
+    from vlaprobe.experts.planner import perturbation_goal
+
+    return perturbation_goal(env.goal_conjunction, env.scene)[0]
+
+
+def episode_perturber(spec: PerturbSpec, seed: int, env: TaskEnv, max_steps: int) -> Perturber | None:
+    """The episode's perturber (None without ``--perturb``) as collection, live runs and benches build it: acting
+    on :func:`perturb_target`, moved objects within reach of ``env.robot_base`` (and, into a drawer, off the
+    drawers' way: ``env.drawer_fronts``), within the episode's budget of ``max_steps`` actions."""
+    if not spec.any:
+        return None
+    goal = perturb_target(env)
+    if goal is None:  # check_tasks_plannable refuses such tasks before a collection
+        raise VlaprobeError(
+            f"--perturb: task {env.task_index}'s goal carries no one object onto or into another"
+        )
+    keep_out = env.drawer_fronts if goal.place in env.scene.containers else None  # other goals: as before
+    return Perturber(spec, seed, env.scene, goal, env.robot_base, max_steps, keep_out)
