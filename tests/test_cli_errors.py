@@ -414,9 +414,15 @@ def test_serve_refuses_a_file_as_recordings(tmp_path: Path, capsys: pytest.Captu
             "libero_10 task 9: the scripted expert has no skill for the goal conjunct Close(microwave_1)",
         ),
         (
-            ["collect", "--suite", "libero_goal", "--tasks", "3", "--perturb", "drop=0.5", "--out", "OUT"],
-            "(a stove, a cabinet's top, a rack; not a drawer); libero_goal task 3's goal is "
-            "In(akita_black_bowl_1,wooden_cabinet_1_top_region)",
+            ["collect", "--suite", "libero_goal", "--tasks", "5", "--perturb", "drop=0.5", "--out", "OUT"],
+            "(a stove, a cabinet's top, a rack, a drawer); libero_goal task 5's goal is "
+            "On(plate_1,main_table_stove_front_region): collect it without --perturb",
+        ),
+        (  # several conjuncts: the plan must end with a pick-and-place
+            ["collect", "--suite", "libero_10", "--tasks", "0", "3", "--perturb", "drop=0.5", "--out", "OUT"],
+            "libero_10 task 3's goal is Close(white_cabinet_1_bottom_region) & In(akita_black_bowl_1,white_cabinet_1"
+            "_bottom_region): its plan ends with close white_cabinet_1_bottom_region, not with a pick-and-place: "
+            "collect it without --perturb",
         ),
         (
             ["collect", "--suite", "libero_90", "--tasks", "0", "35", "--out", "OUT"],

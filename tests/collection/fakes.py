@@ -57,6 +57,9 @@ class FakeEnv:
         self.labeler = Labeler(self.scene, GOAL)
         self.delay = float(os.environ.get("FAKE_STEP_SECONDS", "0"))
 
+    def drawer_fronts(self) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+        return ((np.array([0.0, -0.3]), np.array([0.1, 0.0])),)
+
     def reset(self, init: int) -> Observation:
         self.init, self.t = init, 0
         self.moves: list[tuple[int, str, tuple[float, float]]] = []

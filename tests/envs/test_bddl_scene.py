@@ -9,6 +9,7 @@ import pytest
 
 from vlaprobe.configs.env import SUITES, EnvConfig
 from vlaprobe.envs.bddl_scene import (
+    carried_object_goal,
     in_regions,
     pick_place_goal,
     site_joints,
@@ -20,8 +21,8 @@ from vlaprobe.envs.libero import suite_tasks
 from vlaprobe.envs.libero_source import category_key, object_facts, problem_facts
 from vlaprobe.envs.spatial_scene import SPATIAL_GOAL, SPATIAL_SCENE
 from vlaprobe.errors import VlaprobeError
-from vlaprobe.experts.planner import check_tasks_plannable
-from vlaprobe.symbols import Articulation, build_vocabulary
+from vlaprobe.experts.planner import check_tasks_plannable, perturbation_goal
+from vlaprobe.symbols import Articulation, Goal, build_vocabulary
 from vlaprobe.symbols.goals import Conjunct
 
 REAL_ASSETS = os.environ.get("VLAPROBE_LIBERO_ASSETS")
@@ -136,12 +137,36 @@ def test_every_task_of_every_suite_reads(suite: str) -> None:
         assert len(scene.close_articulation) == len(scene.openable)
 
 
-def test_perturb_check_accepts_every_basket_task_and_refuses_a_drawer() -> None:
-    """``--perturb`` on LIBERO-object (``In(item, basket_1_contain_region)``) passes the up-front check; the
-    goal suite's drawer task (``In(bowl, wooden_cabinet_1_top_region)``) is still refused, naming it."""
+def test_perturb_check_accepts_every_basket_task_and_the_drawer_and_refuses_a_push() -> None:
+    """``--perturb`` on LIBERO-object (``In(item, basket_1_contain_region)``), the goal suite's fixture regions
+    and its drawer task (``In(bowl, wooden_cabinet_1_top_region)``) passes the up-front check; the plate pushed
+    onto the table's region is refused, naming it."""
     tasks = tuple(t for t, _ in suite_tasks("libero_object"))
     check_tasks_plannable(EnvConfig(suite="libero_object"), tasks, expert=True, perturb=True)
-    with pytest.raises(
-        VlaprobeError, match=r"libero_goal task 3's goal is In\(akita_black_bowl_1,wooden_cab"
-    ):
-        check_tasks_plannable(EnvConfig(suite="libero_goal"), (3,), expert=True, perturb=True)
+    check_tasks_plannable(EnvConfig(suite="libero_goal"), (1, 2, 3, 4, 6, 8, 9), expert=True, perturb=True)
+    with pytest.raises(VlaprobeError, match=r"libero_goal task 5's goal is On\(plate_1,main_table_stove"):
+        check_tasks_plannable(EnvConfig(suite="libero_goal"), (5,), expert=True, perturb=True)
+
+
+def test_perturb_acts_on_the_last_placed_object_of_libero_10_and_as_before_elsewhere() -> None:
+    """LIBERO-10: the object the plan places last where it ends with a pick-and-place, nothing where it ends
+    with closing the drawer, a place onto the table's region or has no skill; every goal of one conjunct of
+    the other suites: exactly ``carried_object_goal`` (what ``--perturb`` acted on before)."""
+    last = {
+        0: Goal("tomato_sauce_1", "basket_1"),
+        1: Goal("butter_1", "basket_1"),
+        2: Goal("moka_pot_1", "flat_stove_1_cook_region"),
+        4: Goal("white_yellow_mug_1", "plate_2"),
+        5: Goal("black_book_1", "desk_caddy_1_back_contain_region"),
+        7: Goal("cream_cheese_1", "basket_1"),
+        8: Goal("moka_pot_2", "flat_stove_1_cook_region"),
+    }
+    for task in range(10):
+        assert perturbation_goal(task_goal("libero_10", task), task_scene("libero_10", task))[0] == last.get(
+            task
+        )
+    for suite in ("libero_spatial", "libero_object", "libero_goal", "libero_90"):
+        for task, _ in suite_tasks(suite):  # type: ignore[arg-type]
+            goal, scene = task_goal(suite, task), task_scene(suite, task)  # type: ignore[arg-type]
+            if len(goal.conjuncts) == 1:
+                assert perturbation_goal(goal, scene) == (carried_object_goal(goal, scene), ""), (suite, task)

@@ -1,7 +1,7 @@
 """What ``--perturb`` acts on (``carried_object_goal``), on hand-made scenes and goals: one ``On`` between
 objects, one ``In`` into a movable object's region (a basket), one ``On``/``In`` onto or into a region of a fixture
-without a joint (a cabinet's top, a microwave); drawers, the table's placement regions, opening and several
-conjuncts stay refused. The labeler's ``pick_place_goal`` is unchanged (no ``In``)."""
+(a cabinet's top, a microwave) or into a drawer; the table's placement regions, opening and several conjuncts
+stay refused (``experts.planner.perturbation_goal`` picks the conjunct of several). The labeler's ``pick_place_goal`` is unchanged (no ``In``)."""
 
 from __future__ import annotations
 
@@ -59,9 +59,15 @@ def test_a_fixture_region_without_a_joint_is_the_place_itself() -> None:
         assert carried_object_goal(goal(conjunct), KITCHEN) == Goal("akita_black_bowl_1", conjunct[1][1])
 
 
-def test_drawers_table_regions_openings_and_conjunctions_are_refused() -> None:
+def test_into_a_drawer_is_the_drawer_region_but_onto_it_is_refused() -> None:
+    drawer = "wooden_cabinet_1_top_region"
+    into, onto = goal(("In", ("akita_black_bowl_1", drawer))), goal(("On", ("akita_black_bowl_1", drawer)))
+    assert carried_object_goal(into, KITCHEN) == Goal("akita_black_bowl_1", drawer)
+    assert carried_object_goal(onto, KITCHEN) is None
+
+
+def test_table_regions_openings_and_conjunctions_are_refused() -> None:
     refused = [
-        goal(("In", ("akita_black_bowl_1", "wooden_cabinet_1_top_region"))),  # a drawer
         goal(("On", ("plate_1", "main_table_stove_front_region"))),  # a placement region of the table: a push
         goal(("Open", ("wooden_cabinet_1_top_region",))),
         goal(("In", ("basket_1", "basket_1_contain_region"))),  # the basket into itself

@@ -69,3 +69,24 @@ def test_the_bowl_is_pushed_out_of_the_top_drawers_way() -> None:
         box_lo, box_hi = skill._drawer.opened_box()
         assert np.any((hi[:2] < box_lo[:2]) | (lo[:2] > box_hi[:2])), (lo, hi)  # clear of the drawer's box
         assert hi[2] - lo[2] < 0.06  # pushed upright, not tipped
+
+
+@pytest.mark.libero
+def test_a_bowl_displaced_clear_of_the_drawer_ends_the_push() -> None:
+    """``--perturb``'s displacement lands the bowl away from the drawer while the skill approaches it: the skill
+    aims again, finds it clear and retreats (before, it kept pushing towards the spot aimed at first)."""
+    with LiberoTaskEnv(3, EnvConfig(suite="libero_goal", render=False)) as env:
+        env.reset(0)
+        skill = Clear(env, "akita_black_bowl_1", "wooden_cabinet_1_top_region")
+        bowl = env.scene.tabletop.index("akita_black_bowl_1")
+        assert not skill.done  # init 0: the bowl stands where the drawer opens
+        for _ in range(10):
+            env.step(skill.act())
+        env.place_object("akita_black_bowl_1", (-0.12, 0.2))
+        steps = 0
+        while steps < 120 and not skill.done:
+            assert steps == 0 or skill.phase == "retreat", skill.phase
+            env.step(skill.act())
+            steps += 1
+        assert skill.done
+        assert np.linalg.norm(env.world_state().pos[bowl, :2] - [-0.12, 0.2]) < 0.02  # left where it landed

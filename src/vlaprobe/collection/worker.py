@@ -305,7 +305,7 @@ class _Outcome:
 
     def __init__(self, env: TaskEnv, perturber: Perturber | None, control: EpisodeControl | None) -> None:
         self.perturber, self.control = perturber, control
-        goal = env.perturb_goal  # the carried object's grasp: when a drop may come
+        goal = perturber.goal if perturber is not None else None  # its grasp: when a drop may come
         actions = env.labeler.vocabulary.action_atoms
         self.grasp_col = actions.index(atom("grasped", goal.pick)) if goal is not None else -1
         self.codes: list[int] = []

@@ -57,6 +57,11 @@ class TaskEnv(Protocol):
 
     def world_state(self) -> WorldState: ...
 
+    def drawer_fronts(self) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+        """(x, y) low and high corners of the table area each drawer of the scene opens over, its handle's hand
+        included (where ``--perturb`` lands nothing when the goal goes into a drawer)."""
+        ...
+
     def place_object(self, name: str, xy: tuple[float, float]) -> Observation:
         """Move a movable object to (x, y), resting on the table, and observe again (a perturbation)."""
         ...

@@ -194,11 +194,11 @@ def carried_object_goal(goal: GoalConjunction, scene: Scene) -> Goal | None:
     """The :class:`~vlaprobe.symbols.Goal` the perturbations of ``--perturb`` act on (what to drop, displace or
     knock off, and where it goes): a goal of one ``On(a, b)`` between objects of the scene (LIBERO-spatial); one
     ``In(a, r)`` where ``r`` is the receptacle region of a movable object (LIBERO-object's basket), its place then
-    that object; or one ``On``/``In`` of a pickupable object onto or into a region of a fixture without a joint
-    (a stove's cook region, a cabinet's top, a rack), its place then the region (``WorldState.region_pos``).
-    None for any other goal (drawers: a displacement lands in the drawer skill's way; pushes onto the table's
-    placement regions; opening, turning on; several conjuncts). Only the perturbation path uses it; the labeler
-    keeps :func:`pick_place_goal`."""
+    that object; or one ``On``/``In`` of a pickupable object onto or into a region of a fixture (a stove's cook
+    region, a cabinet's top, a rack) or ``In`` a drawer, its place then the region (``WorldState.region_pos``;
+    moved objects keep off the drawers' way: ``TaskEnv.drawer_fronts``). None for any other goal (pushes onto
+    the table's placement regions; opening, turning on; several conjuncts: ``experts.planner.perturbation_goal``
+    picks one). Only the perturbation path uses it; the labeler keeps :func:`pick_place_goal`."""
     on = pick_place_goal(goal, scene)
     if on is not None or len(goal.conjuncts) != 1:
         return on
@@ -207,7 +207,9 @@ def carried_object_goal(goal: GoalConjunction, scene: Scene) -> Goal | None:
         return None
     what, region = first.args
     holder = scene.region_parent.get(region, "")
-    if region not in scene.regions or region in scene.containers or holder == what:
+    if region not in scene.regions or holder == what:
+        return None
+    if region in scene.containers and first.predicate != "In":
         return None
     if holder in scene.pickupable:  # a movable receptacle (the basket): its origin moves with it
         return Goal(pick=what, place=holder) if first.predicate == "In" else None

@@ -17,7 +17,7 @@ import numpy as np
 from vlaprobe.configs.env import EnvConfig, SuiteName
 from vlaprobe.envs.base import Observation
 from vlaprobe.envs.bddl_scene import carried_object_goal, pick_place_goal, scene_from_problem, task_bddl
-from vlaprobe.envs.libero_world import CAMERA, SceneIndex
+from vlaprobe.envs.libero_world import CAMERA, SceneIndex, drawer_fronts
 from vlaprobe.envs.placements import (
     MAX_DRAWS,
     SAMPLED_INITS,
@@ -345,6 +345,10 @@ class LiberoTaskEnv:
     def world_state(self) -> WorldState:
         """Snapshot the simulator into a :class:`WorldState` (what every detector reads)."""
         return self._index.world_state(self._gripper_command)
+
+    def drawer_fronts(self) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+        """Where each drawer of the scene opens and the hand pulls it (:func:`libero_world.drawer_fronts`)."""
+        return drawer_fronts(self._sim_env, self.scene, self.world_state())
 
     def labels(self) -> tuple[np.ndarray, np.ndarray]:
         """(object bits, action bits) of the current state."""

@@ -179,3 +179,30 @@ class SceneIndex:
 
         gap = np.array([[distance(pairs) for pairs in per_finger] for per_finger in self._finger_pairs])
         return np.minimum(gap.reshape(-1, 2), FINGER_GAP_MAX)
+
+
+HAND_MARGIN = 0.10
+"""Metres a drawer's way reaches beyond its open front: the hand that grasps its handle and pulls."""
+
+
+def drawer_fronts(e: Any, scene: Scene, world: WorldState) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+    """The (x, y) low and high corners of each drawer's way in the built scene ``e``: its cabinet's footprint
+    (``world``'s box) swept along the drawer joint's opening direction (the world-frame slide axis, towards its
+    range's open end) by its travel plus :data:`HAND_MARGIN`. One box per cabinet."""
+    model, data = e.sim.model, e.sim.data
+    boxes: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for region in scene.containers:
+        cabinet = scene.region_parent.get(region, "")
+        if cabinet not in scene.tabletop or cabinet in boxes:
+            continue
+        joint = model.joint_name2id(e.object_sites_dict[region].joints[0])
+        axis = np.asarray(data.xmat[model.jnt_bodyid[joint]]).reshape(3, 3) @ np.asarray(
+            model.jnt_axis[joint]
+        )
+        low, high = (float(v) for v in model.jnt_range[joint])
+        end = low if abs(low) >= abs(high) else high  # the open end: LIBERO's drawers open towards -0.16
+        sweep = axis[:2] * end + np.sign(end) * axis[:2] * HAND_MARGIN
+        i = scene.tabletop.index(cabinet)
+        lo, hi = world.aabb_lo[i, :2], world.aabb_hi[i, :2]
+        boxes[cabinet] = (np.minimum(lo, lo + sweep), np.maximum(hi, hi + sweep))
+    return tuple(boxes.values())

@@ -19,6 +19,10 @@ from vlaprobe.experts.drawer import Drawer
 from vlaprobe.experts.geometry import CLEAR_GAP, CLEAR_NEIGHBOUR, CLEAR_SIDESTEP, CLEAR_TOL
 from vlaprobe.experts.push import Push
 from vlaprobe.experts.targets import Target
+from vlaprobe.symbols import WorldState
+
+JUMP = 0.05
+"""Metres the object moves between two steps for the skill to aim again (a displacement, not a push)."""
 
 
 def clear_move(
@@ -64,15 +68,35 @@ class Clear(Push):
         self._home = self._eef()[0]
         self._drawer.reset()  # the drawer's pose after this episode's reset
         state = self.env.world_state()
+        self._last = state.pos[self._subject].copy()
+        if not self._aim(state):
+            self._enter("done")
+
+    def _aim(self, state: WorldState) -> bool:
+        """Aim the push at the nearest spot clear of the opened drawer; False when the object is clear."""
         move = clear_move(
             state.aabb_lo, state.aabb_hi, self._subject, self._drawer.opened_box(), -self._drawer.out
         )
         if move is None:
-            self._enter("done")
-        else:
-            spot = state.pos[self._subject] + move
-            at = (float(spot[0]), float(spot[1]), float(spot[2]))
-            self._target = Target(self._target.name, half=(CLEAR_TOL, CLEAR_TOL, 0.0), at=at)
+            return False
+        spot = state.pos[self._subject] + move
+        at = (float(spot[0]), float(spot[1]), float(spot[2]))
+        self._target = Target(self._target.name, half=(CLEAR_TOL, CLEAR_TOL, 0.0), at=at)
+        return True
+
+    def _decide(self, state: WorldState) -> np.ndarray:
+        """A jump of the object (``--perturb``'s displacement; no push moves it ``JUMP`` in a step): aim again
+        from where it landed, or retreat when it landed clear of the drawer."""
+        obj = state.pos[self._subject]
+        jumped = float(np.linalg.norm(obj[:2] - self._last[:2])) > JUMP
+        self._last = obj.copy()
+        if jumped and self.phase not in ("retreat", "done"):
+            if self._aim(state):
+                self._enter("approach")
+            else:
+                self._anchor = self._retreat_point(self._eef()[0])
+                self._enter("retreat")
+        return super()._decide(state)
 
     def _retreat_point(self, pos: np.ndarray) -> np.ndarray:
         """Back to where the skill started (high, away from the drawer: the drawer skill returns there too)."""

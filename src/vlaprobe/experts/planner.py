@@ -20,7 +20,7 @@ from vlaprobe.configs.env import EnvConfig
 from vlaprobe.envs.libero import LiberoTaskEnv
 from vlaprobe.errors import VlaprobeError
 from vlaprobe.experts.base import ArmSkill
-from vlaprobe.symbols import Scene
+from vlaprobe.symbols import Goal, Scene
 from vlaprobe.symbols.goals import GoalConjunction
 
 SkillName = Literal["clear", "open", "close", "turn_on", "turn_off", "rim_place", "body_place", "push"]
@@ -39,6 +39,8 @@ RIM_OBJECTS = ("bowl", "mug")
 NO_SKILL = "the scripted expert has no skill for the goal conjunct"
 PUSHED_OBJECTS = ("plate",)
 """Instance-name parts of the objects pushed, not carried, onto a placement region of the table."""
+PLACES: tuple[SkillName, ...] = ("rim_place", "body_place")
+"""The pick-and-place skills: ``--perturb`` acts on the object of a plan that ends with one."""
 
 
 @dataclass(frozen=True)
@@ -80,6 +82,32 @@ def plan_steps(goal: GoalConjunction, scene: Scene) -> list[Step]:
     return sorted(unique, key=lambda s: ORDER.index(s.skill))
 
 
+def perturbation_goal(goal: GoalConjunction, scene: Scene) -> tuple[Goal | None, str]:
+    """What ``--perturb`` acts on, and why nothing where it is None. A goal of one conjunct: its
+    :func:`~vlaprobe.envs.bddl_scene.carried_object_goal`. Several conjuncts: that of the conjunct the plan's
+    last step places (a drop hits that object while carried, a knock-off comes after the whole goal holds,
+    while that pick-and-place is still the running skill); None where the plan ends otherwise (closing a
+    drawer, pushing) or has no skill for a conjunct."""
+    from vlaprobe.envs.bddl_scene import carried_object_goal
+
+    if len(goal.conjuncts) == 1:
+        return carried_object_goal(goal, scene), ""
+    try:
+        last = plan_steps(goal, scene)[-1]
+    except VlaprobeError:
+        return None, "the scripted expert has no plan for it"
+    if last.skill not in PLACES:
+        return None, f"its plan ends with {last.skill} {last.subject}, not with a pick-and-place"
+    conjunct = next(
+        c for c in goal.conjuncts if c.predicate in ("In", "On") and c.args == (last.subject, last.target)
+    )
+    chosen = carried_object_goal(GoalConjunction((conjunct,)), scene)
+    return (
+        chosen,
+        "" if chosen is not None else f"its plan ends with {conjunct}, a place --perturb does not take",
+    )
+
+
 def unplannable_tasks(env: EnvConfig, tasks: tuple[int, ...]) -> dict[int, str]:
     """Of ``tasks`` of ``env.suite``, those whose goal has a conjunct no skill handles: task -> that conjunct
     (read from the BDDL files: no simulator)."""
@@ -105,11 +133,11 @@ def check_tasks_plannable(
     flag: str = "--tasks",
 ) -> None:
     """Before a collection: with the expert (``expert``) every task's goal must have skills, and ``--perturb``
-    (``perturb``) needs a goal that carries one object onto or into another (what to drop, displace or knock
-    off: :func:`~vlaprobe.envs.bddl_scene.carried_object_goal`); one line names the task. ``chosen``: ``tasks``
+    (``perturb``) needs a goal whose plan ends by carrying one object onto or into another (what to drop,
+    displace or knock off: :func:`perturbation_goal`); one line names the task. ``chosen``: ``tasks``
     were named (``flag``); else they are the whole suite, and the line names every task left without a skill and
     the ``flag`` that selects the others."""
-    from vlaprobe.envs.bddl_scene import carried_object_goal, task_bddl, task_scene
+    from vlaprobe.envs.bddl_scene import task_bddl, task_scene
 
     refused = unplannable_tasks(env, tasks) if expert else {}
     if refused and chosen:
@@ -124,11 +152,13 @@ def check_tasks_plannable(
         )
     for task in tasks if perturb else ():
         problem = task_bddl(env.suite, task)
-        if carried_object_goal(problem.goal, task_scene(env.suite, task, env.assets)) is None:
+        target, why = perturbation_goal(problem.goal, task_scene(env.suite, task, env.assets))
+        if target is None:
             raise VlaprobeError(
-                f"--perturb needs a goal of one On or In that carries an object onto or into another object or a "
-                f"region of a fixture without a joint (a stove, a cabinet's top, a rack; not a drawer); "
-                f"{env.suite} task {task}'s goal is {problem.goal}: collect it without --perturb"
+                f"--perturb needs a goal whose plan ends by carrying an object onto or into another object or a "
+                f"region of a fixture (a stove, a cabinet's top, a rack, a drawer); "
+                f"{env.suite} task {task}'s goal is {problem.goal}{': ' + why if why else ''}: collect it "
+                f"without --perturb"
             )
 
 

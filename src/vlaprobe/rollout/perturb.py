@@ -12,6 +12,7 @@ displaced object and picks a knocked-off one up again); detectors and cognition 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -46,6 +47,8 @@ KNOCK_WAIT = 80
 """Rows after the success onset an episode with a knock-off still to come is held open for: the knock-off waits
 for the release (an ``In`` goal holds on contact, ~45 rows before the expert lets go; with
 ``--post-success-steps 0`` the success row would otherwise end the episode). After it the episode ends."""
+Box = tuple[np.ndarray, np.ndarray]
+"""(x, y) low and high corners of a table area no moved object may overlap (a drawer's way: ``keep_out``)."""
 KNOCK_ROOM = 140
 """Least actions left in the episode's budget for a knock-off to come: the expert's recovery (walk back, pick,
 carry, place) took 105-136 rows on LIBERO-object; a knock-off later than that fails an episode that had
@@ -125,11 +128,12 @@ def free_spot(
     near: np.ndarray | None = None,
     base: tuple[float, float] | None = None,
     tries: int = 200,
+    keep_out: tuple[Box, ...] = (),
 ) -> np.ndarray | None:
     """An (x, y) on the table where object ``index``'s footprint keeps :data:`CLEARANCE` from every other
     object (its current spot excluded by 5 cm), inside :data:`WORKSPACE` and, with ``base`` (the robot's base),
-    within :data:`REACH` of it; with ``near``, at a distance in :data:`KNOCK_DISTANCE` of that point. None when no
-    spot is found."""
+    within :data:`REACH` of it; with ``near``, at a distance in :data:`KNOCK_DISTANCE` of that point; off every box
+    of ``keep_out``. None when no spot is found."""
     lo, hi = np.array(WORKSPACE[0]), np.array(WORKSPACE[1])
     for _ in range(tries):
         if near is None:
@@ -137,7 +141,7 @@ def free_spot(
         else:
             angle, dist = rng.uniform(0, 2 * np.pi), rng.uniform(*KNOCK_DISTANCE)
             xy = near[:2] + dist * np.array([np.cos(angle), np.sin(angle)])
-        if _free(world, index, xy, base):
+        if _free(world, index, xy, base, keep_out):
             return xy
     return None
 
@@ -149,18 +153,25 @@ def nearest_free_spot(
     near: np.ndarray,
     base: tuple[float, float] | None = None,
     tries: int = 400,
+    keep_out: tuple[Box, ...] = (),
 ) -> np.ndarray | None:
     """Of ``tries`` spots drawn over :data:`WORKSPACE`, the free one (as in :func:`free_spot`) nearest ``near``:
     where a fixture stands among other things (LIBERO-goal's cabinet between the plate and the rack) no spot
     within :data:`KNOCK_DISTANCE` of its region is free. None when none is free."""
     lo, hi = np.array(WORKSPACE[0]), np.array(WORKSPACE[1])
-    spots = [xy for xy in rng.uniform(lo, hi, size=(tries, 2)) if _free(world, index, xy, base)]
+    spots = [xy for xy in rng.uniform(lo, hi, size=(tries, 2)) if _free(world, index, xy, base, keep_out)]
     if not spots:
         return None
     return min(spots, key=lambda xy: float(np.linalg.norm(xy - near[:2])))
 
 
-def _free(world: WorldState, index: int, xy: np.ndarray, base: tuple[float, float] | None) -> bool:
+def _free(
+    world: WorldState,
+    index: int,
+    xy: np.ndarray,
+    base: tuple[float, float] | None,
+    keep_out: tuple[Box, ...] = (),
+) -> bool:
     """Whether object ``index`` may land with its origin at ``xy`` (the conditions of :func:`free_spot`)."""
     lo, hi = np.array(WORKSPACE[0]), np.array(WORKSPACE[1])
     if np.any(xy < lo) or np.any(xy > hi) or np.linalg.norm(xy - world.pos[index, :2]) < 0.05:
@@ -170,6 +181,8 @@ def _free(world: WorldState, index: int, xy: np.ndarray, base: tuple[float, floa
     half = 0.5 * (world.aabb_hi[index, :2] - world.aabb_lo[index, :2])
     centre_off = world.pos[index, :2] - 0.5 * (world.aabb_hi[index, :2] + world.aabb_lo[index, :2])
     box_lo, box_hi = xy - centre_off - half - CLEARANCE, xy - centre_off + half + CLEARANCE
+    if any(np.all(box_hi >= k_lo) and np.all(box_lo <= k_hi) for k_lo, k_hi in keep_out):
+        return False
     return all(
         np.any(box_hi < world.aabb_lo[j, :2]) or np.any(box_lo > world.aabb_hi[j, :2])
         for j in range(len(world.pos))
@@ -190,6 +203,9 @@ class Perturber:
     max_steps: int | None = None
     """The episode's action budget: a knock-off with fewer than :data:`KNOCK_ROOM` actions left is given up
     (None: no budget)."""
+    keep_out: Callable[[], tuple[Box, ...]] | None = None
+    """The table areas a moved object may not land in, read when a move is due (the fronts of the scene's drawers
+    where the goal goes into one: ``TaskEnv.drawer_fronts``); None: none."""
     planned: list[Planned] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -237,9 +253,10 @@ class Perturber:
                     p.missed = True  # too late to recover within the budget
                     continue
                 near = place if p.kind == "knock_off" else None
-                xy = free_spot(world, self._pick, self.rng, near=near, base=self.base)
+                out = self.keep_out() if self.keep_out is not None else ()
+                xy = free_spot(world, self._pick, self.rng, near=near, base=self.base, keep_out=out)
                 if xy is None and p.kind == "knock_off" and self.goal.place not in self.scene.tabletop:
-                    xy = nearest_free_spot(world, self._pick, self.rng, place, base=self.base)
+                    xy = nearest_free_spot(world, self._pick, self.rng, place, base=self.base, keep_out=out)
                 if xy is None:  # no free spot within reach: given up (the episode's attributes omit it)
                     p.missed = True
                     continue
@@ -259,14 +276,26 @@ class Perturber:
         return self._success_rows > p.after
 
 
+def perturb_target(env: TaskEnv) -> Goal | None:
+    """What ``--perturb`` acts on in ``env``: ``env.perturb_goal`` (a goal of one conjunct), else, for a goal of
+    several, the object the expert's plan places last (:func:`~vlaprobe.experts.planner.perturbation_goal`)."""
+    if env.perturb_goal is not None or len(env.goal_conjunction.conjuncts) < 2:
+        return env.perturb_goal
+    from vlaprobe.experts.planner import perturbation_goal
+
+    return perturbation_goal(env.goal_conjunction, env.scene)[0]
+
+
 def episode_perturber(spec: PerturbSpec, seed: int, env: TaskEnv, max_steps: int) -> Perturber | None:
     """The episode's perturber (None without ``--perturb``) as collection, live runs and benches build it: acting
-    on ``env.perturb_goal``, moved objects within reach of ``env.robot_base``, within the episode's budget of
-    ``max_steps`` actions."""
+    on :func:`perturb_target`, moved objects within reach of ``env.robot_base`` (and, into a drawer, off the
+    drawers' way: ``env.drawer_fronts``), within the episode's budget of ``max_steps`` actions."""
     if not spec.any:
         return None
-    if env.perturb_goal is None:  # check_tasks_plannable refuses such tasks before a collection
+    goal = perturb_target(env)
+    if goal is None:  # check_tasks_plannable refuses such tasks before a collection
         raise VlaprobeError(
             f"--perturb: task {env.task_index}'s goal carries no one object onto or into another"
         )
-    return Perturber(spec, seed, env.scene, env.perturb_goal, base=env.robot_base, max_steps=max_steps)
+    keep_out = env.drawer_fronts if goal.place in env.scene.containers else None  # other goals: as before
+    return Perturber(spec, seed, env.scene, goal, env.robot_base, max_steps, keep_out)
