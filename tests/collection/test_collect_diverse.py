@@ -37,8 +37,16 @@ def test_perturbed_rows_and_episodes_are_marked(tmp_path: Path) -> None:
         assert [m["kind"] for m in marks] == ["displace"] * len(rows)
         assert rows.tolist() == [m["row"] for m in marks]
         assert set(codes[rows].tolist()) <= {KIND_CODE["displace"]}
+        # every episode drew one displacement: it happened, or the episode says why not
+        missed = arrays.attributes.perturbations_missed
+        assert missed is not None and len(marks) + len(missed) == 1
+        assert all(m.kind == "displace" and m.reason.startswith("never due: ") for m in missed)
     d = store_diversity(cfg.out)
     assert d.perturbed_episodes > 0
+    assert d.applied == {"displace": d.perturbed_episodes}
+    # the fakes' seeds give both: episodes displaced, and episodes grasped before their displacement's row
+    assert 0 < d.perturbed_episodes < d.episodes
+    assert d.missed == {"displace: never due": d.episodes - d.perturbed_episodes}
     assert d.episodes == len(store.episodes()) and d.perturbed_episodes == sum(
         bool(store.episode(e.key).attrs["perturbations"]) for e in store.episodes()
     )
@@ -60,3 +68,4 @@ def test_unperturbed_stores_keep_their_arrays_and_attributes(tmp_path: Path) -> 
     assert (
         "perturbation" not in arrays and "perturbations" not in arrays.attrs and "perturb" not in store.meta
     )
+    assert "perturbations_missed" not in arrays.attrs and arrays.attributes.perturbations_missed is None

@@ -165,6 +165,8 @@ def test_a_knock_off_without_a_free_spot_is_given_up_and_releases_the_hold() -> 
     kinds = [perturber.observe(t, crowded, False, True, control) for t in range(8)]
     assert kinds == [""] * 8 and perturber.planned[0].missed and perturber.planned[0].row is None
     assert control.success_hold == 0 and control.take_move() is None
+    (miss,) = perturber.unapplied()
+    assert miss.reason.startswith("no free spot:") and miss.missed_row == 1  # due after 2 success rows
 
 
 def test_a_knock_off_too_late_for_the_budget_is_given_up_and_one_in_time_comes() -> None:
@@ -175,9 +177,36 @@ def test_a_knock_off_too_late_for_the_budget_is_given_up_and_one_in_time_comes()
     start = 10  # success from row 10 on: its knock-off comes due with fewer than KNOCK_ROOM actions left
     kinds = [late.observe(t, w, False, True, control) for t in range(start, start + 8)]
     assert kinds == [""] * 8 and late.planned[0].missed and control.success_hold == 0
+    (miss,) = late.unapplied()
+    due = start + miss.after  # the row its success rows were complete at
+    left = KNOCK_ROOM + 5 - due
+    assert miss.missed_row == due and miss.reason == f"too late: {left} actions left, a recovery needs {KNOCK_ROOM}"
     early, control = Perturber(spec, 3, SCENE, GOAL, max_steps=KNOCK_ROOM + 30), EpisodeControl()
     kinds = [early.observe(t, w, False, True, control) for t in range(start, start + 8)]
-    assert "knock_off" in kinds and not early.planned[0].missed
+    assert "knock_off" in kinds and not early.planned[0].missed and early.unapplied() == []
+
+
+def test_perturbations_whose_moment_never_came_say_why() -> None:
+    """Read after the last row, every drawn perturbation that did not happen names why its trigger never held."""
+    w = world(np.array([[0.0, 0.0, 0.94], [0.1, 0.1, 0.94], [-0.1, 0.2, 0.94]]))
+    spec = PerturbSpec(drop=1.0, displace=1.0, knock_off=1.0)
+    perturber, control = Perturber(spec, 3, SCENE, GOAL), EpisodeControl()
+    for t in range(2):  # two rows, nothing grasped, no success: the episode ends before any trigger
+        assert perturber.observe(t, w, False, False, control) == ""
+    reasons = {p.kind: p.reason for p in perturber.unapplied()}
+    displace_row = next(p.after for p in perturber.planned if p.kind == "displace")
+    assert reasons == {
+        "drop": f"never due: the object was held lifted and away from the target for 0 rows, "
+        f"{next(p.after for p in perturber.planned if p.kind == 'drop') + 1} wanted",
+        "displace": f"never due: the episode ended at row 1, before row {displace_row}",
+        "knock_off": "never due: the task never succeeded with nothing grasped",
+    }
+    assert all(p.missed_row is None and not p.missed for p in perturber.planned)
+    grasped = Perturber(PerturbSpec(displace=1.0), 3, SCENE, GOAL)
+    for t in range(30):  # grasped from row 0 on: the displacement's row passes with the object in hand
+        grasped.observe(t, w, True, False, EpisodeControl())
+    (miss,) = grasped.unapplied()
+    assert miss.reason == f"never due: the object was grasped before row {miss.after}"
 
 
 def test_a_knock_off_from_a_crowded_fixture_lands_at_the_nearest_free_spot() -> None:

@@ -7,8 +7,9 @@ and the report shows them next to the probes.
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -51,6 +52,11 @@ class Diversity:
     heads: dict[str, HeadDiversity]
     perturbed_episodes: int = 0
     """Episodes with at least one perturbation mark (0 for stores collected without ``--perturb``)."""
+    applied: dict[str, int] = field(default_factory=dict)
+    """Perturbations that happened, per kind."""
+    missed: dict[str, int] = field(default_factory=dict)
+    """Perturbations drawn that did not happen, per "kind: reason class" ("knock_off: too late"); empty for
+    stores collected before they were recorded."""
 
     def as_dict(self) -> dict[str, object]:
         """JSON-ready summary (counts; per-atom lists in atom order)."""
@@ -58,6 +64,8 @@ class Diversity:
             "episodes": self.episodes,
             "rows": self.rows,
             "perturbed_episodes": self.perturbed_episodes,
+            "perturbations_applied": dict(self.applied),
+            "perturbations_missed": dict(self.missed),
             "heads": {
                 head: {
                     "atoms": len(h.atoms),
@@ -98,11 +106,13 @@ def diversity(
     atom_names: Mapping[str, Sequence[str]],
     episodes: Sequence[Mapping[str, np.ndarray]],
     perturbed_episodes: int = 0,
+    applied: Mapping[str, int] | None = None,
+    missed: Mapping[str, int] | None = None,
 ) -> Diversity:
     """:class:`Diversity` from episodes given as head -> (rows, atoms) bool arrays."""
     heads = {head: head_diversity(names, [e[head] for e in episodes]) for head, names in atom_names.items()}
     rows = sum(len(e[next(iter(atom_names))]) for e in episodes)
-    return Diversity(len(episodes), rows, heads, perturbed_episodes)
+    return Diversity(len(episodes), rows, heads, perturbed_episodes, dict(applied or {}), dict(missed or {}))
 
 
 def store_diversity(path: object, success_only: bool = False) -> Diversity:
@@ -112,16 +122,25 @@ def store_diversity(path: object, success_only: bool = False) -> Diversity:
     store = ActivationStore.open(path)  # type: ignore[arg-type]
     names = store.atom_names
     episodes, perturbed = [], 0
+    applied: Counter[str] = Counter()
+    missed: Counter[str] = Counter()
     for info in store.episodes(success_only=success_only):
         arrays = store.episode(info.key)
         episodes.append({head: np.asarray(arrays[ATOM_ARRAYS[head]]) for head in names})
-        perturbed += bool(arrays.attributes.perturbations)
-    return diversity(names, episodes, perturbed)
+        attrs = arrays.attributes
+        perturbed += bool(attrs.perturbations)
+        applied.update(p.kind for p in attrs.perturbations or ())
+        missed.update(f"{m.kind}: {m.reason.split(':')[0]}" for m in attrs.perturbations_missed or ())
+    return diversity(names, episodes, perturbed, applied, missed)
 
 
 def summary_lines(d: Diversity) -> list[str]:
     """The figures as text lines (``vlaprobe info``)."""
     lines = [f"diversity {d.episodes} episodes, {d.rows} rows, {d.perturbed_episodes} perturbed episodes"]
+    if d.applied or d.missed:
+        done = ", ".join(f"{k} {n}" for k, n in sorted(d.applied.items())) or "none"
+        lost = ", ".join(f"{k} {n}" for k, n in sorted(d.missed.items())) or "none recorded"
+        lines.append(f"  perturbations applied: {done}; drawn but not applied: {lost}")
     for head, h in d.heads.items():
         lines.append(
             f"  {head:>6}: {h.distinct_states} distinct state vectors ({h.distinct_first_states} at the first row); "

@@ -157,6 +157,19 @@ class PerturbationMark:
     """The first row it changed."""
 
 
+@dataclass(frozen=True)
+class PerturbationMiss:
+    """A perturbation an episode drew that did not happen, and why."""
+
+    kind: str
+    """``rollout.perturb`` kind."""
+    row: int | None
+    """The row at which it was given up; None when its moment never came."""
+    reason: str
+    """"<class>: <details>", the class one of "too late" (a knock-off with too few actions left to recover),
+    "no free spot" (none within reach), "never due" (e.g. the task never succeeded)."""
+
+
 @dataclass
 class EpisodeAttrs:
     """The attributes of an episode besides its :class:`~vlaprobe.collection.store.EpisodeInfo`."""
@@ -182,6 +195,9 @@ class EpisodeAttrs:
     """``--inits sampled-swap``: object -> the table region it started in, where it differs from the BDDL."""
     perturbations: list[PerturbationMark] | None = None
     """The perturbations that happened (``--perturb``); None: collected without."""
+    perturbations_missed: list[PerturbationMiss] | None = None
+    """The perturbations drawn for the episode that did not happen, with why (``--perturb``); None: collected
+    without, or before they were recorded."""
     faults: list[FaultMark] | None = None
     """The faults injected into the expert that hit this episode (``--expert-faults``); None: collected
     without."""
@@ -208,6 +224,10 @@ class EpisodeAttrs:
                 out[name] = getattr(self, name)
         if self.perturbations is not None:
             out["perturbations"] = [{"kind": p.kind, "row": p.row} for p in self.perturbations]
+        if self.perturbations_missed is not None:
+            out["perturbations_missed"] = [
+                {"kind": m.kind, "row": m.row, "reason": m.reason} for m in self.perturbations_missed
+            ]
         if self.faults is not None:
             out["faults"] = [{"kind": f.kind, "row": f.row} for f in self.faults]
             out["failure_step"] = self.failure_step
@@ -224,6 +244,7 @@ class EpisodeAttrs:
         goal = Goal(**attrs["goal"]) if "goal" in attrs else None
         known = {f.name for f in dataclasses.fields(cls)} | {f.name for f in dataclasses.fields(EpisodeInfo)}
         marks, faults = attrs.get("perturbations"), attrs.get("faults")
+        misses = attrs.get("perturbations_missed")
         return cls(
             instruction=str(attrs.get("instruction", "")),
             scene=scene,
@@ -237,6 +258,14 @@ class EpisodeAttrs:
             perturbations=None
             if marks is None
             else [PerturbationMark(str(m["kind"]), int(m["row"])) for m in marks],
+            perturbations_missed=None
+            if misses is None
+            else [
+                PerturbationMiss(
+                    str(m["kind"]), None if m["row"] is None else int(m["row"]), str(m["reason"])
+                )
+                for m in misses
+            ],
             faults=None if faults is None else [FaultMark(str(m["kind"]), int(m["row"])) for m in faults],
             failure_step=None if attrs.get("failure_step") is None else int(attrs["failure_step"]),
             takeovers=None if attrs.get("takeovers") is None else Takeovers.from_json(attrs["takeovers"]),

@@ -15,7 +15,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from vlaprobe.collection.defined import TaskColumns
-from vlaprobe.collection.episode import EpisodeAttrs, EpisodeSteps, PerturbationMark, StepRows
+from vlaprobe.collection.episode import (
+    EpisodeAttrs,
+    EpisodeSteps,
+    PerturbationMark,
+    PerturbationMiss,
+    StepRows,
+)
 from vlaprobe.collection.plan import Unit
 from vlaprobe.collection.store import EpisodeInfo
 from vlaprobe.collection.takeovers import MakeSupervisor, matched_counts, random_supervisor
@@ -350,5 +356,8 @@ def _episode_attrs(env: TaskEnv, perturber: Perturber | None, seconds: float) ->
     if perturber is not None:
         attrs.perturbations = [
             PerturbationMark(p.kind, p.row) for p in perturber.planned if p.row is not None
+        ]
+        attrs.perturbations_missed = [
+            PerturbationMiss(p.kind, p.missed_row, p.reason) for p in perturber.unapplied()
         ]
     return attrs

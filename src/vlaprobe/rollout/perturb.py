@@ -115,10 +115,15 @@ class Planned:
     """drop: held rows with the object lifted and away from the target before it; displace: the row (if still before the grasp);
     knock_off: rows after success (with nothing grasped) before it."""
     row: int | None = None
-    """The row at which it was applied (None: its moment never came)."""
+    """The row at which it was applied (None: not applied)."""
     missed: bool = False
     """Its moment came but it was given up: no free spot within reach, or (a knock-off) fewer than
     :data:`KNOCK_ROOM` actions left."""
+    missed_row: int | None = None
+    """The row at which it was given up (None: not given up)."""
+    reason: str = ""
+    """Why it was not applied, "<class>: <details>" (classes: "too late", "no free spot", "never due"); set when
+    it is given up, or by :meth:`Perturber.unapplied` for one whose moment never came; "" while still to come."""
 
 
 def free_spot(
@@ -221,6 +226,8 @@ class Perturber:
         self._held_lifted = 0
         self._grasped_ever = False
         self._success_rows = 0
+        self._success_run = 0  # the longest run of rows succeeded with nothing grasped
+        self._rows = 0
 
     def place_point(self, world: WorldState) -> np.ndarray:
         """(3,) where the carried object goes: the place object's origin, or the fixture region's site."""
@@ -237,11 +244,13 @@ class Perturber:
         While a knock-off is still to come, ``control`` holds a success open for :data:`KNOCK_WAIT` rows (set
         from the first row on: the success row may be the last one otherwise)."""
         self._grasped_ever |= grasped
+        self._rows = t + 1
         lifted = world.aabb_lo[self._pick, 2] - world.table_height > LIFTED
         place = self.place_point(world)
         away = np.linalg.norm(world.pos[self._pick, :2] - place[:2]) > DROP_AWAY
         self._held_lifted += int(grasped and lifted and away)
         self._success_rows = self._success_rows + 1 if success and not grasped else 0
+        self._success_run = max(self._success_run, self._success_rows)
         kind = ""
         for p in self.planned:
             if p.row is not None or p.missed:
@@ -250,15 +259,17 @@ class Perturber:
                 control.drop(DROP_STEPS)
             elif p.kind in ("displace", "knock_off") and self._due(p, t):
                 if p.kind == "knock_off" and self.max_steps is not None and self.max_steps - t < KNOCK_ROOM:
-                    p.missed = True  # too late to recover within the budget
+                    left = self.max_steps - t  # too late to recover within the budget
+                    self._give_up(p, t, f"too late: {left} actions left, a recovery needs {KNOCK_ROOM}")
                     continue
                 near = place if p.kind == "knock_off" else None
                 out = self.keep_out() if self.keep_out is not None else ()
                 xy = free_spot(world, self._pick, self.rng, near=near, base=self.base, keep_out=out)
                 if xy is None and p.kind == "knock_off" and self.goal.place not in self.scene.tabletop:
                     xy = nearest_free_spot(world, self._pick, self.rng, place, base=self.base, keep_out=out)
-                if xy is None:  # no free spot within reach: given up (the episode's attributes omit it)
-                    p.missed = True
+                if xy is None:
+                    way = " off the drawers' way" if out else ""
+                    self._give_up(p, t, f"no free spot: none within {REACH:g} m of the robot's base{way}")
                     continue
                 control.move(self.goal.pick, xy)
             else:
@@ -268,6 +279,36 @@ class Perturber:
         waiting = any(p.kind == "knock_off" and p.row is None and not p.missed for p in self.planned)
         control.hold_success(KNOCK_WAIT if waiting else 0)
         return kind
+
+    @staticmethod
+    def _give_up(p: Planned, t: int, reason: str) -> None:
+        p.missed, p.missed_row, p.reason = True, t, reason
+
+    def unapplied(self) -> list[Planned]:
+        """The planned perturbations not applied, each with its :attr:`Planned.reason`: given up, or (read after
+        the episode's last row) never due."""
+        out = [p for p in self.planned if p.row is None]
+        for p in out:
+            if not p.missed:
+                p.reason = f"never due: {self._never_due(p)}"
+        return out
+
+    def _never_due(self, p: Planned) -> str:
+        """Why the moment of ``p`` did not come in the rows observed."""
+        if p.kind == "drop":
+            return (
+                f"the object was held lifted and away from the target for {self._held_lifted} rows, "
+                f"{p.after + 1} wanted"
+            )
+        if p.kind == "displace":
+            if self._rows <= p.after:
+                return f"the episode ended at row {self._rows - 1}, before row {p.after}"
+            return f"the object was grasped before row {p.after}"
+        if not self._success_run:
+            return "the task never succeeded with nothing grasped"
+        return (
+            f"the success with nothing grasped lasted at most {self._success_run} rows, {p.after + 1} wanted"
+        )
 
     def _due(self, p: Planned, t: int) -> bool:
         """A displacement at its row while nothing has been grasped yet; a knock-off after its success rows."""
