@@ -42,6 +42,8 @@ def test_probe_finds_the_failure_direction_and_the_figures_round_trip(tmp_path: 
     by = {p.name: p for p in result.predictors}
     assert result.episodes == 36 and result.failed == 18 and result.known_failure_steps == 18
     assert by["probe"].auc["0.5"].value == 1.0 and by["cognition"].auc["1"].value == 1.0
+    lstm = by["probe_lstm"].auc["1"].value  # the drift along one direction, read through the sequence model
+    assert lstm is not None and lstm > 0.9
     assert by["time"].auc_at_step["25"].value == 0.5  # at one step, time alone cannot tell
     assert by["time"].auc_at_step["100"].value is None  # no episode runs that long
     assert by["probe"].auc_at_step["50"].value == 1.0
@@ -75,6 +77,7 @@ def test_the_mlp_probe_and_the_token_predictors_see_a_known_failure_signal(tmp_p
         "cognition",
         "probe",
         "probe_mlp",
+        "probe_lstm",
         "time",
         "task_time",
         "token_entropy",
@@ -186,7 +189,7 @@ def test_the_report_shows_the_failures_section(tmp_path: Path) -> None:
     start = page.index("<h2 id='failures'>Failure prediction</h2>")
     html = page[start:]
     assert (
-        html.count("<tr><td>") == 5
+        html.count("<tr><td>") == 6  # one row per predictor
         and html.count("<figure><img") == 2
         and "ROC-AUC at 0.5" in html
         and "24 episodes" in html

@@ -9,7 +9,8 @@ episode from that row and the ones before it, as a live monitor could:
   drops so far. Its coefficients say which features drove an alarm.
 - ``probe``: a logistic regression on one layer's hidden state of the row (standardised); ``probe_mlp``: a small
   MLP (one hidden layer of :data:`MLP_UNITS`, weight decay, early stopping) on the same states, trained by the
-  same function on the same rows and weights (:func:`fit_hidden`).
+  same function on the same rows and weights (:func:`fit_hidden`); ``probe_lstm``: an LSTM over the layer's
+  states of the rows so far (:mod:`vlaprobe.cognition.failure_sequence`), the same rows and weights.
 - ``time``: the step itself. ``task_time``: the training episodes' failure share among those of the same task
   still running at that step (bins of :data:`BIN` steps).
 - ``token_entropy`` and ``token_max_prob`` (only when the episodes carry them, ``EpisodeData.tokens``): the mean
@@ -26,12 +27,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from vlaprobe.cognition.core import Cognition, CognitionStep
+from vlaprobe.cognition.failure_sequence import fit_sequence
 
 FEATURES = ("progress_deficit", "stall", "violations", "regressions", "drops")
 """The cognition's features, in column order."""
 BIN = 10
 """Steps per bin of the task × time baseline."""
-PREDICTORS = ("cognition", "probe", "probe_mlp", "time", "task_time")
+PREDICTORS = ("cognition", "probe", "probe_mlp", "probe_lstm", "time", "task_time")
 TOKEN_PREDICTORS = ("token_entropy", "token_max_prob")
 """Scored when every episode carries its action-token distribution (``EpisodeData.tokens``)."""
 MLP_UNITS = 32
@@ -122,7 +124,8 @@ class Fitted:
     coef: np.ndarray
     intercept: float
     probes: dict[str, object]
-    """"probe", "probe_mlp" -> a fitted classifier of the hidden state (:func:`fit_hidden`)."""
+    """"probe", "probe_mlp" -> a fitted classifier of the hidden state (:func:`fit_hidden`); "probe_lstm" -> one
+    of the hidden states so far (:func:`~vlaprobe.cognition.failure_sequence.fit_sequence`)."""
     task_time: dict[tuple[int, int], float]
     base_rate: float
 
@@ -202,6 +205,10 @@ def fit(train: Sequence[EpisodeData], seed: int) -> Fitted:
     lr.fit((x - mean) / scale, y, sample_weight=weight)
     h = np.concatenate([e.hidden for e in train])
     probes = {kind: fit_hidden(kind, h, y, weight, seed) for kind in ("probe", "probe_mlp")}
+    rows = np.cumsum([e.length for e in train])[:-1]
+    per_episode = np.split(balanced(y, weight), rows)
+    seqs, failed = [e.hidden for e in train], [e.failed for e in train]
+    probes["probe_lstm"] = fit_sequence(seqs, failed, per_episode, seed)
     counts: dict[tuple[int, int], list[int]] = {}
     for e in train:
         for b in range(-(-e.length // BIN)):
