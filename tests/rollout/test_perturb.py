@@ -180,7 +180,10 @@ def test_a_knock_off_too_late_for_the_budget_is_given_up_and_one_in_time_comes()
     (miss,) = late.unapplied()
     due = start + miss.after  # the row its success rows were complete at
     left = KNOCK_ROOM + 5 - due
-    assert miss.missed_row == due and miss.reason == f"too late: {left} actions left, a recovery needs {KNOCK_ROOM}"
+    assert (
+        miss.missed_row == due
+        and miss.reason == f"too late: {left} actions left, a recovery needs {KNOCK_ROOM}"
+    )
     early, control = Perturber(spec, 3, SCENE, GOAL, max_steps=KNOCK_ROOM + 30), EpisodeControl()
     kinds = [early.observe(t, w, False, True, control) for t in range(start, start + 8)]
     assert "knock_off" in kinds and not early.planned[0].missed and early.unapplied() == []

@@ -26,11 +26,23 @@ def test_a_drawers_way_is_its_cabinet_swept_along_the_opening_by_its_travel_and_
         world = env.world_state()
         (lo, hi), *rest = env.drawer_fronts()
         cabinet = env.scene.tabletop.index("wooden_cabinet_1")
+        sim = env.sim_env.sim
+        joint = sim.model.joint_name2id(
+            env.sim_env.object_sites_dict["wooden_cabinet_1_top_region"].joints[0]
+        )
+        sim.data.qpos[sim.model.jnt_qposadr[joint]] = -0.15  # the top drawer open (LIBERO's threshold -0.14)
+        sim.forward()
+        opened = env.world_state()
+        (opened_lo, opened_hi), *_ = env.drawer_fronts()
+        o_c_lo, o_c_hi = opened.aabb_lo[cabinet, :2], opened.aabb_hi[cabinet, :2]
     assert not rest  # one cabinet, three drawers: one way
     c_lo, c_hi = world.aabb_lo[cabinet, :2], world.aabb_hi[cabinet, :2]
     assert np.all(lo <= c_lo) and np.all(hi >= c_hi)
     grown = (hi - lo) - (c_hi - c_lo)  # LIBERO's cabinet faces the table's middle: its drawers slide 16 cm
     assert np.isclose(np.max(grown), 0.16 + HAND_MARGIN) and np.isclose(np.min(grown), 0.0)
+    assert np.allclose(lo, opened_lo, atol=0.005) and np.allclose(hi, opened_hi, atol=0.005)
+    # with a drawer open, the cabinet's box holds it: the way is the same, not swept by the whole travel again
+    assert np.max(o_c_hi - o_c_lo - (c_hi - c_lo)) > 0.1
 
 
 @pytest.mark.heavy

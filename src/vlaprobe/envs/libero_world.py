@@ -187,21 +187,28 @@ HAND_MARGIN = 0.10
 
 def drawer_fronts(e: Any, scene: Scene, world: WorldState) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
     """The (x, y) low and high corners of each drawer's way in the built scene ``e``: its cabinet's footprint
-    (``world``'s box) swept along the drawer joint's opening direction (the world-frame slide axis, towards its
-    range's open end) by its travel plus :data:`HAND_MARGIN`. One box per cabinet."""
+    with every drawer shut, swept along the drawers' opening direction (the world-frame slide axis, towards its
+    range's open end) by their travel plus :data:`HAND_MARGIN`. One box per cabinet, whatever its drawers' state:
+    ``world``'s box of the cabinet holds its drawers as they are, so it is swept by what is left of the travel of
+    the drawer opened farthest (swept by the whole travel again, an open drawer's way covered the table's width)."""
     model, data = e.sim.model, e.sim.data
     boxes: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    for region in scene.containers:
-        cabinet = scene.region_parent.get(region, "")
-        if cabinet not in scene.tabletop or cabinet in boxes:
+    for cabinet in dict.fromkeys(scene.region_parent.get(r, "") for r in scene.containers):
+        if cabinet not in scene.tabletop:
             continue
-        joint = model.joint_name2id(e.object_sites_dict[region].joints[0])
-        axis = np.asarray(data.xmat[model.jnt_bodyid[joint]]).reshape(3, 3) @ np.asarray(
-            model.jnt_axis[joint]
+        joints = [
+            model.joint_name2id(e.object_sites_dict[r].joints[0])
+            for r in scene.containers
+            if scene.region_parent.get(r) == cabinet
+        ]
+        axis = np.asarray(data.xmat[model.jnt_bodyid[joints[0]]]).reshape(3, 3) @ np.asarray(
+            model.jnt_axis[joints[0]]
         )
-        low, high = (float(v) for v in model.jnt_range[joint])
+        low, high = (float(v) for v in model.jnt_range[joints[0]])
         end = low if abs(low) >= abs(high) else high  # the open end: LIBERO's drawers open towards -0.16
-        sweep = axis[:2] * end + np.sign(end) * axis[:2] * HAND_MARGIN
+        opened = max(float(data.qpos[model.jnt_qposadr[j]]) * np.sign(end) for j in joints)
+        left = max(abs(end) - max(opened, 0.0), 0.0)
+        sweep = np.sign(end) * axis[:2] * (left + HAND_MARGIN)
         i = scene.tabletop.index(cabinet)
         lo, hi = world.aabb_lo[i, :2], world.aabb_hi[i, :2]
         boxes[cabinet] = (np.minimum(lo, lo + sweep), np.maximum(hi, hi + sweep))
