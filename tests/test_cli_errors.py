@@ -533,6 +533,22 @@ def test_issue20_options_are_one_line(
             ["collect", "--driver", "policy", "--takeover", "alarm", "--takeover-steps", "0", "--out", "OUT"],
             "--takeover-steps must",
         ),
+        (
+            [
+                *["collect", "--driver", "policy", "--takeover", "alarm"],
+                "--takeover-on",
+                "stall",
+                "stall",
+                "--out",
+                "OUT",
+            ],
+            "--takeover-on names a kind twice",
+        ),
+        (["serve", "--driver", "policy", "--takeover", "alarm", "--takeover-on"], "--takeover-on"),
+        (
+            ["serve", "--driver", "policy", "--takeover", "alarm", "--takeover-on", "shake"],
+            "--takeover-on",
+        ),
     ],
 )
 def test_takeover_combinations_are_one_line(

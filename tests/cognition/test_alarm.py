@@ -51,6 +51,20 @@ def test_an_event_fires_at_once_and_its_reason_names_the_kind_once() -> None:
     assert alarm.text() == "regression: grasped(a) no longer done"
 
 
+def test_the_alarm_fires_only_on_the_kinds_it_is_given() -> None:
+    """--takeover-on stall: a regression and a held violation pass; the stall still fires, counted as before."""
+    event = Event("regression", 3, "regression: grasped(a) no longer done")
+    v = Violation("on_and_inside", "on and inside", ("on(a,b)",), since=1)
+
+    def run(rule: AlarmRule) -> list[tuple[int, str]]:
+        steps = [CognitionStep(t, (), (), (v,), (), 0.0, (event,) if t == 3 else (), False) for t in range(8)]
+        return [(t, a.kind) for t, s in enumerate(steps) if (a := rule.check(s, acting=False)) is not None]
+
+    assert run(AlarmRule(stall=6, hold=2, most=3)) == [(2, "violation"), (3, "regression"), (4, "violation")]
+    assert run(AlarmRule(stall=6, hold=2, most=3, on=("stall",))) == [(6, "stall")]
+    assert run(AlarmRule(stall=6, hold=2, most=3, on=("regression",))) == [(3, "regression")]
+
+
 def _level(t: int, done: int, goal: bool = False) -> CognitionStep:
     """A step whose first ``done`` subgoals are done."""
     status = ["done"] * done + ["active"] + ["pending"] * 3
@@ -153,3 +167,12 @@ def test_the_random_control_under_the_subgoal_rule_needs_the_cognition(tmp_path:
     rand = _config(tmp_path / "random", takeover="random", takeover_match=alarm.out)
     with pytest.raises(VlaprobeError, match="--takeover-until subgoal hands back by the cognition"):
         collect(rand, make_fake_worker)
+
+
+def test_the_stores_settings_name_the_alarms_kinds_only_when_not_all() -> None:
+    """A store collected before --takeover-on reads as every kind: its settings text is unchanged."""
+    every = TakeoverConfig(takeover="alarm")
+    assert "on=" not in every.text() and every.text() == (
+        "alarm until=subgoal steps=150 most=3 stall=40 hold=5 atoms=truth"
+    )
+    assert TakeoverConfig(takeover="alarm", takeover_on=("stall",)).text().endswith(" on=stall")

@@ -67,9 +67,18 @@ def test_the_alarm_hands_the_policy_to_the_expert_and_back(fake_run: Path, tmp_p
         takeover_most=2,
         takeover_until="steps",
     )
-    assert hello["protocol"] == 4 and hello["drivers"] == ["policy"]
+    assert hello["protocol"] == 5 and hello["drivers"] == ["policy"]
     assert hello["takeover"] == {
-        **{"mode": "alarm", "steps": 3, "until": "steps", "most": 2, "stall": 4, "hold": 5, "count": 1}
+        **{
+            "mode": "alarm",
+            "steps": 3,
+            "until": "steps",
+            "most": 2,
+            "stall": 4,
+            "hold": 5,
+            "count": 1,
+            "on": ["stall", "regression", "dropped", "violation"],
+        }
     }
     start, steps, end = msgs[0], msgs[1:-1], msgs[-1]
     assert start["takeover"] == "alarm" and end["type"] == "episode_end"

@@ -369,6 +369,7 @@ export interface TakeoverSettings {
   hold: number;
   mode: "alarm" | "random";
   most: number;
+  on?: ("stall" | "regression" | "dropped" | "violation")[];
   stall: number;
   steps: number;
   until?: "subgoal" | "steps";

@@ -19,7 +19,7 @@ import numpy as np
 
 from vlaprobe.cognition.core import Cognition, CognitionStep
 from vlaprobe.configs.collect import CollectConfig
-from vlaprobe.configs.takeover import TakeoverConfig
+from vlaprobe.configs.takeover import ALARM_KINDS, TakeoverConfig
 from vlaprobe.envs.base import TaskEnv
 from vlaprobe.rollout import StepRecord
 from vlaprobe.rollout.takeover import Supervisor, Takeover
@@ -47,10 +47,11 @@ class Alarm:
 
 
 class AlarmRule:
-    """Fires on stalls, regressions, drops and held violations; at most ``most`` times per episode."""
+    """Fires on stalls, regressions, drops and held violations (those of them in ``on``); at most ``most`` times
+    per episode."""
 
-    def __init__(self, stall: int, hold: int, most: int) -> None:
-        self.stall, self.hold, self.most = stall, hold, most
+    def __init__(self, stall: int, hold: int, most: int, on: tuple[str, ...] = ALARM_KINDS) -> None:
+        self.stall, self.hold, self.most, self.on = stall, hold, most, frozenset(on)
         self.reset()
 
     def reset(self) -> None:
@@ -74,14 +75,14 @@ class AlarmRule:
 
     def _why(self, step: CognitionStep, t: int) -> Alarm | None:
         for e in step.events:
-            if e.kind in REACTIVE:
+            if e.kind in REACTIVE and e.kind in self.on:
                 return Alarm(e.kind, e.message.removeprefix(f"{e.kind}: "))  # text() prefixes the kind
         held = [v for v in step.violations if t - v.since + 1 >= self.hold]
-        if held:
+        if held and "violation" in self.on:
             rules = tuple(sorted({v.rule for v in held}))
             atoms = tuple(sorted({a for v in held for a in v.atoms}))
             return Alarm("violation", held[0].message, rules, atoms)
-        if t - self._since >= self.stall:
+        if t - self._since >= self.stall and "stall" in self.on:
             active = next((g.name for g in step.subgoals if g.status != "done"), "")
             return Alarm(
                 "stall", f"no subgoal done for {t - self._since} steps (next: {active})", (), (active,)
@@ -132,7 +133,7 @@ class CognitionSupervisor:
         self.readout = None if probes is None else ProbeReadout.load(probes, model_id=model_id)
         probed = None if self.readout is None else self.readout.probed
         self.cognition = Cognition(vocab.object_atoms, vocab.action_atoms, env.goal, probed=probed)
-        self.rule = AlarmRule(cfg.takeover_stall, cfg.takeover_hold, cfg.takeover_most)
+        self.rule = AlarmRule(cfg.takeover_stall, cfg.takeover_hold, cfg.takeover_most, cfg.takeover_on)
         self.trigger = trigger
         self.until = SubgoalHandBack() if cfg.takeover_until == "subgoal" else None
         self._back: str | None = None

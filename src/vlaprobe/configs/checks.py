@@ -227,6 +227,10 @@ def check_takeover(cfg: TakeoverConfig, driver: str, command: str, prefix: str =
         )
     for name in ("takeover_steps", "takeover_most", "takeover_stall", "takeover_hold", "takeover_count"):
         at_least(getattr(cfg, name), 1, _flag("", name))
+    if not cfg.takeover_on:
+        raise VlaprobeError("--takeover-on needs at least one of stall, regression, dropped, violation")
+    if len(set(cfg.takeover_on)) != len(cfg.takeover_on):
+        raise VlaprobeError(f"--takeover-on names a kind twice ({' '.join(cfg.takeover_on)}); give each once")
     if command == "serve" and cfg.takeover_match is not None:
         raise VlaprobeError(
             "--takeover-match matches a collection's alarm run; serve --takeover random takes --takeover-count"

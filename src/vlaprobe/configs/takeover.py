@@ -10,6 +10,9 @@ TakeoverMode = Literal["none", "alarm", "random"]
 """Who hands the policy's control to the scripted expert: nobody, the cognition's alarm, or random times."""
 TakeoverUntil = Literal["subgoal", "steps"]
 """When the expert hands back: once the subgoal current at the takeover's start is done, or after a fixed count."""
+AlarmKind = Literal["stall", "regression", "dropped", "violation"]
+"""What may fire the cognition's alarm (``vlaprobe.cognition.alarm.Alarm.kind``)."""
+ALARM_KINDS: tuple[AlarmKind, ...] = ("stall", "regression", "dropped", "violation")
 
 
 @dataclass
@@ -39,6 +42,9 @@ class TakeoverConfig:
     takeover_hold: int = 5
     """... or when a consistency rule's violation has held this many steps, or at once on a regression or a
     dropped object (the cognition's events)."""
+    takeover_on: tuple[AlarmKind, ...] = ALARM_KINDS
+    """--takeover alarm: what fires it (default: all four). "stall" alone, for instance, lets the policy go on
+    after a regression or a drop until it stalls."""
     takeover_probes: Path | None = None
     """collect --takeover alarm: the probe folder whose predictions the cognition reads; default: the
     simulator's ground-truth atoms (serve always reads its --probes)."""
@@ -54,6 +60,8 @@ class TakeoverConfig:
             return ""
         probes = "truth" if self.takeover_probes is None else str(self.takeover_probes)
         alarm = f" stall={self.takeover_stall} hold={self.takeover_hold} atoms={probes}"
+        if tuple(self.takeover_on) != ALARM_KINDS:  # stores before the option: every kind
+            alarm += f" on={','.join(self.takeover_on)}"
         until = " until=subgoal" if self.takeover_until == "subgoal" else ""  # stores before it: steps
         return f"{self.takeover}{until} steps={self.takeover_steps} most={self.takeover_most}" + (
             alarm if self.takeover == "alarm" else ""

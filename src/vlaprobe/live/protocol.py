@@ -88,11 +88,11 @@ __all__ = [  # with the parts (vlaprobe.live.protocol_parts), importable from he
 ]
 
 SCHEMA_FILE = Path(__file__).with_name("protocol.schema.json")
-PROTOCOL_VERSION = 4
+PROTOCOL_VERSION = 5
 """Version of the message set, sent as ``hello.protocol``: 2 added the cognition's alarm and the takeovers
 (``--takeover``); 3 the atoms an episode leaves undefined (``episode_start.defined``, their probabilities
-null); 4 the takeovers' hand-back (``hello.takeover.until``, ``takeover.ended``); a hello without the field is
-version 1. New fields are optional: a client of an older version reads
+null); 4 the takeovers' hand-back (``hello.takeover.until``, ``takeover.ended``); 5 what fires the alarm
+(``hello.takeover.on``); a hello without the field is version 1. New fields are optional: a client of an older version reads
 the messages it knows."""
 
 

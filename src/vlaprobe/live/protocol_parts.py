@@ -10,6 +10,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from vlaprobe.configs.takeover import ALARM_KINDS, AlarmKind
+
 
 class StrictModel(BaseModel):
     """A message part: unknown fields are refused."""
@@ -164,6 +166,8 @@ class TakeoverSettings(StrictModel):
     """Mode "alarm": the stall that fires it, in steps (--takeover-stall)."""
     hold: int
     """Mode "alarm": steps a violation must hold (--takeover-hold)."""
+    on: list[AlarmKind] = Field(default_factory=lambda: list(ALARM_KINDS))
+    """Mode "alarm": what fires it (--takeover-on); absent (protocol 4 and before): all four."""
     count: int
     """Mode "random": takeovers per episode at random steps (--takeover-count)."""
 

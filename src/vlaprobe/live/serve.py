@@ -263,6 +263,7 @@ def takeover_settings(cfg: TakeoverConfig) -> P.TakeoverSettings | None:
         most=cfg.takeover_most,
         stall=cfg.takeover_stall,
         hold=cfg.takeover_hold,
+        on=list(cfg.takeover_on),
         count=cfg.takeover_count,
     )
 

@@ -30,7 +30,7 @@ class LiveTakeovers:
     def __init__(self, cfg: TakeoverConfig, seed: int, max_steps: int) -> None:
         """``seed`` and ``max_steps``: the episode's (they draw the random control's rows)."""
         self.rule = (
-            AlarmRule(cfg.takeover_stall, cfg.takeover_hold, cfg.takeover_most)
+            AlarmRule(cfg.takeover_stall, cfg.takeover_hold, cfg.takeover_most, cfg.takeover_on)
             if cfg.takeover == "alarm"
             else None
         )
