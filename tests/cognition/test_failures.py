@@ -210,3 +210,33 @@ def test_undefined_atoms_feed_no_belief_to_the_cognitions_columns(tmp_path: Path
         assert source == str(probes) and len(data) == 3
         assert {r for step in data[1].rules for r in step} == violations
         assert data[1].cognition[:, 2].max() == len(violations)
+
+
+def test_each_first_alarm_names_its_feature_rules_atoms_and_last_event(tmp_path: Path) -> None:
+    """A failure's rows after its failure step hold a violation over on(a,b) and follow a regression: the
+    cognition's first alarms name them, with the pending subgoal; the file (format 3) and the table carry them."""
+    data = []
+    for e in episodes(24):
+        after = np.arange(e.length) >= (e.failure_step or e.length)
+        rules = [("on_and_inside",) if a else () for a in after]
+        atoms = [("on(a,b)",) if a else () for a in after]
+        event = ["regression: grasped(a) no longer done" if a else "" for a in after]
+        data.append(
+            dataclasses.replace(
+                e, rules=rules, subgoal=["grasped(a)"] * e.length, violated_atoms=atoms, last_event=event
+            )
+        )
+    result = evaluate(data, FailuresConfig(alpha=0.3, folds=2, bootstrap=20), "truth", 3)
+    cog = next(p for p in result.predictors if p.name == "cognition")
+    failed_alarms = [c for c in cog.alarms if c.failed]
+    assert failed_alarms and len(cog.alarms) == sum(
+        v for k, v in cog.alarm_drivers.items() if not k.startswith("rule:")
+    )
+    late = [c for c in failed_alarms if c.rules]
+    assert late and all(
+        c.atoms == ["on(a,b)", "grasped(a)"] and c.event.startswith("regression") for c in late
+    )
+    assert all(c.atoms == ["grasped(a)"] and not c.event for c in cog.alarms if not c.rules)
+    write_failures(tmp_path, result)
+    assert read_failures(tmp_path) == result
+    assert "alarm atoms {" in table(result) and "grasped(a)" in table(result)

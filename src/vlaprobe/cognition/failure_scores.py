@@ -67,6 +67,10 @@ class EpisodeData:
     """Per row: the active subgoal's belief ("" once the goal is reached)."""
     tokens: np.ndarray | None = None
     """(T, 2): the observer's mean action-token entropy and mean top probability at each row, or None."""
+    violated_atoms: list[tuple[str, ...]] | None = None
+    """Per row: the atoms of the violations holding (:func:`alarm_context`); None: not recorded."""
+    last_event: list[str] | None = None
+    """Per row: the latest regression or drop so far, its message ("" for none); None: not recorded."""
 
     @property
     def length(self) -> int:
@@ -87,6 +91,16 @@ def cognition_columns(steps: Sequence[CognitionStep]) -> tuple[np.ndarray, list[
         rules.append(tuple(sorted({v.rule for v in s.violations})))
         subgoal.append(next((g.name for g in s.subgoals if g.status != "done"), ""))
     return cols, rules, subgoal
+
+
+def alarm_context(steps: Sequence[CognitionStep]) -> tuple[list[tuple[str, ...]], list[str]]:
+    """Per step of a run: the atoms of the violations holding, and the latest regression or drop so far ("")."""
+    atoms, events, last = [], [], ""
+    for s in steps:
+        last = next((e.message for e in reversed(s.events) if e.kind in ("regression", "dropped")), last)
+        atoms.append(tuple(sorted({a for v in s.violations for a in v.atoms})))
+        events.append(last)
+    return atoms, events
 
 
 def run_cognition(cog: Cognition, obj: np.ndarray, act: np.ndarray) -> list[CognitionStep]:

@@ -34,8 +34,8 @@ from vlaprobe.files import from_json, read_versioned, write_atomic
 from vlaprobe.probes.bootstrap import Estimate, bootstrap_weights, interval
 
 FAILURES_FILE = "failures.json"
-FORMAT, VERSION = "vlaprobe-failures", 2
-READABLE = {1, 2}
+FORMAT, VERSION = "vlaprobe-failures", 3
+READABLE = {1, 2, 3}
 """Version 1 lacks the ROC curves, the score bands and the token figures: they read as empty."""
 TIMES = (0.25, 0.5, 0.75, 1.0)
 """Normalised times of the ROC-AUCs."""
@@ -94,10 +94,29 @@ class PredictorFigures:
     alarm_drivers: dict[str, int]
     """cognition only: the feature with the largest term at each first alarm, and "rule:<id>" for each rule
     violated then, counted over alarmed episodes."""
+    alarms: list[AlarmCause] = field(default_factory=list)
+    """cognition only: each alarmed episode's first alarm and what drove it (format 3; empty before)."""
     roc: dict[str, Roc] = field(default_factory=dict)
     """Normalised time -> the ROC curve of the running score there (its area is ``auc``)."""
     bands: ScoreBands | None = None
     """The running score's median and interquartile band over time, successes and failures."""
+
+
+@dataclass(frozen=True)
+class AlarmCause:
+    """What drove the cognition's first alarm in one episode."""
+
+    key: str
+    row: int
+    failed: bool
+    feature: str
+    """The feature with the largest term in the score at that row."""
+    rules: list[str]
+    """The rules violated at that row."""
+    atoms: list[str]
+    """The beliefs involved: the violated rules' atoms, then the subgoal not yet done (its belief)."""
+    event: str
+    """The latest regression or drop up to that row ("" for none)."""
 
 
 @dataclass(frozen=True)
@@ -205,19 +224,34 @@ def score_folds(
     return out, fits, min(len(c) for c in cals)
 
 
-def _drivers(data: list[EpisodeData], fits: list[Fitted], fold: np.ndarray, s: _Scored) -> dict[str, int]:
-    counts: Counter[str] = Counter()
+def _causes(data: list[EpisodeData], fits: list[Fitted], fold: np.ndarray, s: _Scored) -> list[AlarmCause]:
+    """The cognition's first alarm of every alarmed episode and what drove it."""
+    out = []
     for e, f, row in zip(data, fold, s.alarms, strict=True):
         if row is None:
             continue
         terms = fits[f].contributions(e)[row]
-        counts[FEATURES[int(np.argmax(terms))]] += 1
-        counts.update(f"rule:{r}" for r in e.rules[row])
+        atoms = list(e.violated_atoms[row]) if e.violated_atoms is not None else []
+        atoms += [e.subgoal[row]] if e.subgoal[row] and e.subgoal[row] not in atoms else []
+        event = e.last_event[row] if e.last_event is not None else ""
+        feature = FEATURES[int(np.argmax(terms))]
+        out.append(AlarmCause(e.key, int(row), e.failed, feature, list(e.rules[row]), atoms, event))
+    return out
+
+
+def _drivers(causes: list[AlarmCause]) -> dict[str, int]:
+    """Per feature and "rule:<id>", the first alarms it drove."""
+    counts: Counter[str] = Counter(c.feature for c in causes)
+    counts.update(f"rule:{r}" for c in causes for r in c.rules)
     return dict(sorted(counts.items()))
 
 
 def predictor_figures(
-    name: str, data: list[EpisodeData], s: _Scored, weights: np.ndarray, drivers: dict[str, int]
+    name: str,
+    data: list[EpisodeData],
+    s: _Scored,
+    weights: np.ndarray,
+    causes: list[AlarmCause] | None = None,
 ) -> PredictorFigures:
     """The figures of one predictor, with intervals over the bootstrap ``weights`` (resamples, episodes)."""
     failed = np.array([e.failed for e in data])
@@ -272,7 +306,8 @@ def predictor_figures(
         lead_to_failure_step=median(np.nan_to_num(fstep) - first, known),
         false_alarm_rate=share(alarmed, wins),
         false_alarms_per_100_steps=_fig(100 * (onsets * wins).sum() / max((rows * wins).sum(), 1), per100),
-        alarm_drivers=drivers,
+        alarm_drivers=_drivers(causes) if causes is not None else {},
+        alarms=list(causes or []),
         roc=roc,
         bands=bands,
     )
@@ -294,7 +329,7 @@ def evaluate(
     weights = bootstrap_weights(len(data), cfg.bootstrap, cfg.seed)
     figures = [
         predictor_figures(
-            p, data, scored[p], weights, _drivers(data, fits, fold, scored[p]) if p == "cognition" else {}
+            p, data, scored[p], weights, _causes(data, fits, fold, scored[p]) if p == "cognition" else None
         )
         for p in predictor_names(data)
     ]

@@ -53,7 +53,7 @@ def load_episodes(cfg: FailuresConfig) -> tuple[list[EpisodeData], str, int, Tok
     """Every stored episode as the predictors read it; the atoms' source, the probe's layer and, with
     ``--token-model``, where the token distributions came from."""
     from vlaprobe.cognition.core import Cognition
-    from vlaprobe.cognition.failure_scores import cognition_columns, run_cognition
+    from vlaprobe.cognition.failure_scores import alarm_context, cognition_columns, run_cognition
     from vlaprobe.cognition.monitor_inputs import check_store
     from vlaprobe.cognition.plan import TaskGoal, stored_task_goal
     from vlaprobe.cognition.readout import HEADS, ProbeReadout
@@ -93,6 +93,7 @@ def load_episodes(cfg: FailuresConfig) -> tuple[list[EpisodeData], str, int, Tok
         values = only_defined(values, store.episode_defined(info.key))  # undefined atoms are never asserted
         steps = run_cognition(cogs[goal], values["object"], values["action"])
         cols, rules, subgoal = cognition_columns(steps)
+        violated, last_event = alarm_context(steps)
         tokens = None
         if observer is not None:
             tokens, same = episode_tokens(observer, store.episode(info.key), cfg.store)
@@ -109,6 +110,8 @@ def load_episodes(cfg: FailuresConfig) -> tuple[list[EpisodeData], str, int, Tok
                 rules=rules,
                 subgoal=subgoal,
                 tokens=tokens,
+                violated_atoms=violated,
+                last_event=last_event,
             )
         )
     source = None

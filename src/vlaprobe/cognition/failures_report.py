@@ -5,13 +5,15 @@ curves and score-vs-time bands, what drove the cognition's alarms), rendered by
 from __future__ import annotations
 
 import base64
+from collections import Counter
+from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from vlaprobe.cognition.failures import FAILURES_FILE, FailuresResult, read_failures
+from vlaprobe.cognition.failures import FAILURES_FILE, AlarmCause, FailuresResult, read_failures
 from vlaprobe.probes.bootstrap import Estimate
 
 if TYPE_CHECKING:
@@ -43,6 +45,8 @@ def table(result: FailuresResult) -> str:
         )
         if p.alarm_drivers:
             lines.append(f"{'':14s} alarm drivers {p.alarm_drivers}")
+        if p.alarms:
+            lines.append(f"{'':14s} alarm atoms {alarm_atoms(p.alarms)}")
     lines.append(f"token uncertainty: {result.token_uncertainty}")
     if result.token_match is not None:
         lines.append(
@@ -59,7 +63,11 @@ def report_section(probes: Path) -> Section | None:
     from vlaprobe.reports.sections import Section
 
     result = read_failures(probes)
-    data = {"result": asdict(result), "figures": [figure_data(*f) for f in figures(result)]}
+    data = {
+        "result": asdict(result),
+        "figures": [figure_data(*f) for f in figures(result)],
+        "alarm_atoms": {p.name: alarm_atoms(p.alarms) for p in result.predictors},
+    }
     return Section(
         id="failures",
         title="Failure prediction",
@@ -67,6 +75,11 @@ def report_section(probes: Path) -> Section | None:
         data=data,
         package="vlaprobe.cognition",
     )
+
+
+def alarm_atoms(causes: Sequence[AlarmCause], top: int = 8) -> dict[str, int]:
+    """The beliefs most often involved in the first alarms (violated rules' atoms and the pending subgoal)."""
+    return dict(Counter(a for c in causes for a in c.atoms).most_common(top))
 
 
 def figure_data(caption: str, rendered: Rendered) -> dict[str, str]:
