@@ -30,7 +30,10 @@ def test_the_compiled_step_trains_as_the_eager_one_and_repeats_bit_for_bit(fast_
         for key in ("train_loss", "val_loss", "val_l1_normalized"):
             assert c[key] == pytest.approx(e[key], rel=1e-4, abs=1e-5), key
     we, wc = weights(runs["eager"].out), weights(runs["a"].out)
-    assert max(float((we[k] - wc[k]).abs().max()) for k in we) < 1e-4
+    # The compiled kernels sum in another order; where a gradient is near zero Adam's normalised step can still
+    # move a weight by up to lr, so the weights are held to a fraction of one step (measured: below 1e-4 on the
+    # earlier CI machines, 1.55e-4 on the Xeon of 2026-12-07; lr here 2e-3).
+    assert max(float((we[k] - wc[k]).abs().max()) for k in we) < runs["eager"].lr / 4
     assert compiled[-1]["train_loss"] < compiled[0]["train_loss"]
 
 

@@ -106,7 +106,7 @@ def test_serve_union_suite_marks_the_atoms_the_task_lacks(tmp_path: Path) -> Non
         msgs = []
         while not msgs or msgs[-1]["type"] != "episode_end":
             msgs.append(json.loads(ws.recv(timeout=120)))
-    assert hello["protocol"] == 4 and hello["probes"]["atoms"] == atoms
+    assert hello["protocol"] == 5 and hello["probes"]["atoms"] == atoms
     assert [t["index"] for t in hello["tasks"]] == list(range(10))
     first, steps = msgs[0], [m for m in msgs if m["type"] == "step"]
     assert first["atoms"] == atoms and first["defined"] == defined and len(steps) == STEPS

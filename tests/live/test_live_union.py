@@ -57,7 +57,7 @@ def test_live_episode_marks_the_atoms_its_task_lacks(union_app: object, tmp_path
     hello, start, steps = run_episode(union_app, 0)
     _, own_start, own_steps = run_episode(app_of(tmp_path / "own", [SCENE]), 0)  # probes of task 0's atoms
     assert own_start.defined is None and len(own_steps) == len(steps)
-    assert hello["protocol"] == P.PROTOCOL_VERSION == 4
+    assert hello["protocol"] == P.PROTOCOL_VERSION == 5
     own = build_vocabulary(SCENE)
     assert start.defined is not None and steps
     for h in HEADS:
