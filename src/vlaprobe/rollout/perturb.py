@@ -116,14 +116,17 @@ class Planned:
     knock_off: rows after success (with nothing grasped) before it."""
     row: int | None = None
     """The row at which it was applied (None: not applied)."""
-    missed: bool = False
-    """Its moment came but it was given up: no free spot within reach, or (a knock-off) fewer than
-    :data:`KNOCK_ROOM` actions left."""
     missed_row: int | None = None
     """The row at which it was given up (None: not given up)."""
     reason: str = ""
     """Why it was not applied, "<class>: <details>" (classes: "too late", "no free spot", "never due"); set when
     it is given up, or by :meth:`Perturber.unapplied` for one whose moment never came; "" while still to come."""
+
+    @property
+    def missed(self) -> bool:
+        """Its moment came but it was given up: no free spot within reach, or (a knock-off) fewer than
+        :data:`KNOCK_ROOM` actions left."""
+        return self.missed_row is not None
 
 
 def free_spot(
@@ -282,7 +285,7 @@ class Perturber:
 
     @staticmethod
     def _give_up(p: Planned, t: int, reason: str) -> None:
-        p.missed, p.missed_row, p.reason = True, t, reason
+        p.missed_row, p.reason = t, reason
 
     def unapplied(self) -> list[Planned]:
         """The planned perturbations not applied, each with its :attr:`Planned.reason`: given up, or (read after
